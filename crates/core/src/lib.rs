@@ -1,0 +1,4 @@
+//! The science core of viscoprobe: pure computation, no I/O.
+pub mod contact;
+pub mod discrete;
+pub mod prony;
