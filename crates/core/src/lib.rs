@@ -2,3 +2,5 @@
 pub mod contact;
 pub mod discrete;
 pub mod prony;
+pub mod fisher;
+pub mod linalg;
