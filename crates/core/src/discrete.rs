@@ -104,6 +104,14 @@ pub fn tustin(model: &PronySeries, fs_hz: f64) -> DiscreteTf {
 /// Poles outside (−1, 1) on the real axis are mapped faithfully (they give negative τ):
 /// the caller decides whether such an estimate is physical ([`PronySeries::is_physical`]).
 pub fn d2c(tf: &DiscreteTf) -> Result<PronySeries, D2cError> {
+    let m = d2c_by_pole(tf)?;
+    Ok(PronySeries::new(m.j0_per_pa, m.terms))
+}
+
+/// [`d2c`] with the terms ordered by their discrete pole, largest first, instead of by τ.
+/// For physical models (all poles in (−1, 1)) the two orders agree; for unphysical ones this
+/// order stays fixed under small perturbations, which the ARX delta method needs.
+pub fn d2c_by_pole(tf: &DiscreteTf) -> Result<PronySeries, D2cError> {
     let n = tf.a.len() - 1;
     if n == 0 {
         return Err(D2cError::Degree(0));
@@ -133,6 +141,7 @@ pub fn d2c(tf: &DiscreteTf) -> Result<PronySeries, D2cError> {
     let t = 1.0 / tf.fs_hz;
     let j0 = poly_eval(&b, 1.0) / poly_eval(&a, 1.0);
     let da = poly_derivative(&a);
+    poles.sort_by(|a, b| b.total_cmp(a));
     let terms = poles
         .iter()
         .map(|&z| {
@@ -140,7 +149,41 @@ pub fn d2c(tf: &DiscreteTf) -> Result<PronySeries, D2cError> {
             PronyTerm { j_per_pa: 2.0 * residue / (1.0 - z * z), tau_s: t * (1.0 + z) / (2.0 * (1.0 - z)) }
         })
         .collect();
-    Ok(PronySeries::new(j0, terms))
+    Ok(PronySeries { j0_per_pa: j0, terms })
+}
+
+/// One partial-fraction term of a discrete model whose pole may be complex.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ComplexTerm {
+    pub j: Complex64,
+    pub tau: Complex64,
+}
+
+/// The paper's procedure carried out in complex arithmetic (as MATLAB's `d2c` + `residue`
+/// do): J0 and the terms of every pole, real or not. For a complex pole pair the "Prony
+/// parameters" come out complex: there is no physical creep compliance behind them. Used
+/// to show what the paper's method reports when noise turns its poles complex.
+pub fn d2c_complex(tf: &DiscreteTf) -> Result<(f64, Vec<ComplexTerm>), D2cError> {
+    let n = tf.a.len() - 1;
+    if n == 0 {
+        return Err(D2cError::Degree(0));
+    }
+    let a0 = tf.a[0];
+    let a: Vec<f64> = tf.a.iter().map(|c| c / a0).collect();
+    let mut b: Vec<f64> = tf.b.iter().map(|c| c / a0).collect();
+    b.resize(n + 1, 0.0);
+    let t = 1.0 / tf.fs_hz;
+    let da = poly_derivative(&a);
+    let mut roots = poly_roots(&a);
+    roots.sort_by(|x, y| y.re.total_cmp(&x.re).then(y.im.total_cmp(&x.im)));
+    let terms = roots
+        .iter()
+        .map(|&z| {
+            let residue = poly_eval_c(&b, z) / poly_eval_c(&da, z);
+            ComplexTerm { j: 2.0 * residue / (1.0 - z * z), tau: t * (1.0 + z) / (2.0 * (1.0 - z)) }
+        })
+        .collect();
+    Ok((poly_eval(&b, 1.0) / poly_eval(&a, 1.0), terms))
 }
 
 /// Simulates `y = G_d(z)·u` from rest with a transposed direct-form-II filter.

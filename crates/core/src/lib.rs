@@ -4,3 +4,5 @@ pub mod discrete;
 pub mod prony;
 pub mod fisher;
 pub mod linalg;
+pub mod estimate;
+pub mod studies;

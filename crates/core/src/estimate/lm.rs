@@ -1,0 +1,127 @@
+//! Levenberg–Marquardt for small nonlinear least-squares problems.
+//!
+//! Written here rather than taken from the `levenberg-marquardt` crate because the fits
+//! need three things that crate does not give together: the Gauss–Newton matrix `JᵀJ` at
+//! the solution (it *is* the inverse covariance), a bound on the step in log-parameters
+//! (a retardation time must not jump by orders of magnitude in one step), and nalgebra
+//! versions decoupled from ours. The algorithm is the textbook one with Marquardt's
+//! diagonal scaling.
+
+use nalgebra::{DMatrix, DVector};
+
+/// Residuals and Jacobian at a parameter vector, or `None` when the point is invalid.
+pub type Evaluation = Option<(DVector<f64>, DMatrix<f64>)>;
+
+/// Solver settings.
+#[derive(Debug, Clone, Copy)]
+pub struct LmOptions {
+    pub max_iterations: usize,
+    /// Largest |step| component; log-parameters move by at most this per iteration.
+    pub max_step: f64,
+    /// Relative cost decrease below which the fit has converged.
+    pub cost_tolerance: f64,
+    /// Step size (relative to 1 + |p|) below which the fit has converged.
+    pub step_tolerance: f64,
+}
+
+impl Default for LmOptions {
+    fn default() -> Self {
+        Self { max_iterations: 300, max_step: 1.5, cost_tolerance: 1e-13, step_tolerance: 1e-11 }
+    }
+}
+
+/// Result of a solve.
+#[derive(Debug, Clone)]
+pub struct LmResult {
+    pub params: Vec<f64>,
+    pub cost: f64,
+    pub jtj: DMatrix<f64>,
+    pub residuals: DVector<f64>,
+    pub iterations: usize,
+    pub converged: bool,
+}
+
+/// Minimises `|r(p)|²` from `p0`. Returns `None` when `p0` itself cannot be evaluated.
+pub fn solve(p0: &[f64], eval: impl Fn(&[f64]) -> Evaluation, opts: LmOptions) -> Option<LmResult> {
+    let mut p = DVector::from_column_slice(p0);
+    let (mut r, mut jac) = eval(p.as_slice())?;
+    let mut cost = r.norm_squared();
+    let mut jtj = jac.transpose() * &jac;
+    let mut lambda = 1e-3;
+    let n = p.len();
+    let mut converged = false;
+    let mut iterations = 0;
+    while iterations < opts.max_iterations {
+        iterations += 1;
+        let g = jac.transpose() * &r;
+        if g.amax() <= 1e-30 || cost <= 1e-300 {
+            converged = true;
+            break;
+        }
+        let diag: Vec<f64> = (0..n).map(|i| jtj[(i, i)].max(1e-30)).collect();
+        let mut accepted = false;
+        while lambda < 1e16 {
+            let mut a = jtj.clone();
+            for (i, d) in diag.iter().enumerate() {
+                a[(i, i)] += lambda * d;
+            }
+            let Some(chol) = a.cholesky() else {
+                lambda *= 10.0;
+                continue;
+            };
+            let mut step = -chol.solve(&g);
+            let big = step.amax();
+            if big > opts.max_step {
+                step *= opts.max_step / big;
+            }
+            let trial = &p + &step;
+            match eval(trial.as_slice()) {
+                Some((r_new, j_new)) if r_new.norm_squared().is_finite() && r_new.norm_squared() < cost => {
+                    let new_cost = r_new.norm_squared();
+                    let small_gain = cost - new_cost <= opts.cost_tolerance * cost;
+                    let small_step = (0..n).all(|i| step[i].abs() <= opts.step_tolerance * (1.0 + p[i].abs()));
+                    p = trial;
+                    r = r_new;
+                    jac = j_new;
+                    jtj = jac.transpose() * &jac;
+                    cost = new_cost;
+                    lambda = (lambda / 3.0).max(1e-12);
+                    accepted = true;
+                    if small_gain || small_step {
+                        converged = true;
+                    }
+                    break;
+                }
+                _ => lambda *= 10.0,
+            }
+        }
+        if converged {
+            break;
+        }
+        if !accepted {
+            // No step of any damping lowers the cost: a (local) minimum to working precision.
+            converged = true;
+            break;
+        }
+    }
+    Some(LmResult { params: p.iter().copied().collect(), cost, jtj, residuals: r, iterations, converged })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Rosenbrock as least squares: r = (10(y − x²), 1 − x); minimum at (1, 1).
+    #[test]
+    fn finds_rosenbrock_minimum() {
+        let eval = |p: &[f64]| -> Evaluation {
+            let (x, y) = (p[0], p[1]);
+            let r = DVector::from_vec(vec![10.0 * (y - x * x), 1.0 - x]);
+            let j = DMatrix::from_row_slice(2, 2, &[-20.0 * x, 10.0, -1.0, 0.0]);
+            Some((r, j))
+        };
+        let res = solve(&[-1.2, 1.0], eval, LmOptions { max_step: 10.0, ..Default::default() }).unwrap();
+        assert!(res.converged);
+        assert!((res.params[0] - 1.0).abs() < 1e-8 && (res.params[1] - 1.0).abs() < 1e-8, "{:?}", res.params);
+    }
+}

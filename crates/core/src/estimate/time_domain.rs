@@ -1,0 +1,140 @@
+//! Output-error fit in the time domain, for inputs that are not periodic (ramps, holds,
+//! steps, stress-relaxation records).
+//!
+//! The model output is simulated exactly as the Tustin model does it
+//! ([`crate::discrete::simulate_tustin`]): `ŷ = J0·u − Σ Ji·HP_τi(u)`, starting from the
+//! steady state of a constant input `u[0]`. The fit minimises `Σ (y − ŷ)²` over
+//! log-parameters; the noise variance comes from the residuals, so the intervals assume white
+//! output noise (the diagnostics report the lag-1 residual correlation to check that).
+
+use super::lm::{self, Evaluation, LmOptions};
+use super::start::{grid_starts, log_grid};
+use super::{check_finite, Diagnostics, Estimate, EstimateError, Method};
+use crate::discrete::tustin_highpass;
+use crate::linalg::{rcond_sym, spd_inverse, SINGULAR_RCOND};
+use crate::prony::PronySeries;
+use nalgebra::{DMatrix, DVector};
+
+/// Settings of the time-domain fit.
+#[derive(Debug, Clone)]
+pub struct TimeFitOptions {
+    pub order: usize,
+    pub grid_size: usize,
+    pub starts: usize,
+    pub extra_start: Option<PronySeries>,
+    pub lm: LmOptions,
+}
+
+impl TimeFitOptions {
+    pub fn new(order: usize) -> Self {
+        Self { order, grid_size: 16, starts: 6, extra_start: None, lm: LmOptions::default() }
+    }
+}
+
+/// Fits a Prony series to `u → y` sampled at `fs_hz`.
+pub fn fit_time_domain(u: &[f64], y: &[f64], fs_hz: f64, opts: &TimeFitOptions) -> Result<Estimate, EstimateError> {
+    let n = opts.order;
+    if n == 0 {
+        return Err(EstimateError::Order(0));
+    }
+    if u.len() != y.len() {
+        return Err(EstimateError::LengthMismatch { input: u.len(), output: y.len() });
+    }
+    check_finite(u)?;
+    check_finite(y)?;
+    let n_params = 2 * n + 1;
+    let len = u.len();
+    if len < 4 * n_params {
+        return Err(EstimateError::TooFewSamples { samples: len, params: n_params });
+    }
+    let u_range = u.iter().fold(f64::NEG_INFINITY, |a, &b| a.max(b)) - u.iter().fold(f64::INFINITY, |a, &b| a.min(b));
+    if u_range <= 0.0 {
+        return Err(EstimateError::NoExcitation("the input is constant over the record".into()));
+    }
+    let scale = (y.iter().map(|v| v * v).sum::<f64>() / len as f64).sqrt().max(1e-300);
+    let eval = |p: &[f64]| -> Evaluation {
+        if p.iter().any(|v| !v.is_finite() || v.abs() > 700.0) {
+            return None;
+        }
+        let j0 = p[0].exp();
+        let mut yhat: Vec<f64> = u.iter().map(|x| j0 * x).collect();
+        let mut jac = DMatrix::zeros(len, p.len());
+        for (t, x) in u.iter().enumerate() {
+            jac[(t, 0)] = -j0 * x / scale;
+        }
+        const H: f64 = 1e-5;
+        for i in 0..n {
+            let (ji, tau) = (p[1 + i].exp(), p[1 + n + i].exp());
+            let hp = tustin_highpass(u, tau, fs_hz);
+            let hp_up = tustin_highpass(u, tau * H.exp(), fs_hz);
+            let hp_dn = tustin_highpass(u, tau * (-H).exp(), fs_hz);
+            for t in 0..len {
+                yhat[t] -= ji * hp[t];
+                jac[(t, 1 + i)] = ji * hp[t] / scale;
+                jac[(t, 1 + n + i)] = ji * (hp_up[t] - hp_dn[t]) / (2.0 * H) / scale;
+            }
+        }
+        let r = DVector::from_fn(len, |t, _| (y[t] - yhat[t]) / scale);
+        Some((r, jac))
+    };
+
+    let duration = len as f64 / fs_hz;
+    let taus = log_grid(2.0 / fs_hz, duration / 2.0, opts.grid_size.max(n));
+    let target: Vec<f64> = y.iter().map(|v| v / scale).collect();
+    let j0_col: Vec<f64> = u.iter().map(|v| v / scale).collect();
+    let columns: Vec<Vec<f64>> =
+        taus.iter().map(|&t| tustin_highpass(u, t, fs_hz).iter().map(|v| -v / scale).collect()).collect();
+    let mut starts: Vec<Vec<f64>> =
+        grid_starts(&target, &j0_col, &columns, &taus, n, opts.starts).into_iter().map(|s| s.log_params).collect();
+    if let Some(prior) = &opts.extra_start {
+        if prior.order() == n && prior.is_physical() {
+            starts.push(prior.to_vec().iter().map(|v| v.ln()).collect());
+        }
+    }
+    if starts.is_empty() {
+        return Err(EstimateError::NoStart);
+    }
+    let mut best: Option<lm::LmResult> = None;
+    let mut last = None;
+    for s in &starts {
+        if let Some(res) = lm::solve(s, eval, opts.lm) {
+            if !res.converged {
+                last = Some((res.iterations, res.cost));
+                continue;
+            }
+            if best.as_ref().is_none_or(|b| res.cost < b.cost) {
+                best = Some(res);
+            }
+        }
+    }
+    let Some(best) = best else {
+        let (iterations, cost) = last.unwrap_or((0, f64::NAN));
+        return Err(EstimateError::NoConvergence { iterations, cost });
+    };
+    let d: Vec<f64> = (0..n_params).map(|i| best.jtj[(i, i)].max(1e-300).sqrt()).collect();
+    let rcond = rcond_sym(&DMatrix::from_fn(n_params, n_params, |i, j| best.jtj[(i, j)] / (d[i] * d[j])));
+    if rcond < SINGULAR_RCOND {
+        return Err(EstimateError::IllConditioned { rcond });
+    }
+    let dof = len - n_params;
+    let s2 = best.cost / dof as f64;
+    let cov = spd_inverse(&best.jtj).ok_or(EstimateError::IllConditioned { rcond })? * s2;
+    let r = &best.residuals;
+    let lag1 = (1..len).map(|t| r[t] * r[t - 1]).sum::<f64>() / best.cost.max(1e-300);
+    let mut warnings = Vec::new();
+    if lag1.abs() > 3.0 / (len as f64).sqrt() {
+        warnings.push(format!(
+            "residuals are correlated (lag-1 correlation {lag1:.3}); intervals assume white noise and may be too narrow"
+        ));
+    }
+    let diagnostics = Diagnostics {
+        cost: best.cost,
+        dof,
+        cost_per_dof: s2,
+        iterations: best.iterations,
+        observations: len,
+        noise_free: s2 <= 1e-24,
+        warnings,
+    };
+    Ok(Estimate::from_log_fit(Method::TimeOutputError, &best.params, cov, diagnostics))
+}

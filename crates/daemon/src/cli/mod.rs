@@ -1,0 +1,28 @@
+//! The `viscoprobe` subcommands. Each lives in its own module with an `Args` struct and a
+//! `run` function; this file only wires them to clap.
+
+use clap::{Parser, Subcommand};
+
+pub mod reproduce;
+
+/// viscoprobe — rapid broadband nanomechanical spectroscopy of soft materials.
+#[derive(Debug, Parser)]
+#[command(name = "viscoprobe", version, about, propagate_version = true)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Regenerate the paper's simulation studies and compare estimators against the truth.
+    #[command(subcommand)]
+    Reproduce(reproduce::ReproduceCommand),
+}
+
+/// Runs the parsed command line.
+pub fn dispatch(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        Command::Reproduce(cmd) => reproduce::run(cmd),
+    }
+}

@@ -1,0 +1,5 @@
+//! The binary edge of viscoprobe: the `viscoprobe` command line (and, later, the
+//! `viscoprobed` service). Everything here may touch files, the terminal and the clock;
+//! the science it prints comes from `viscoprobe_core`.
+pub mod cli;
+pub mod output;
