@@ -240,3 +240,25 @@ pub fn efficiency(runs: usize, seed0: u64, mut progress: impl FnMut(usize)) -> E
         .collect();
     Efficiency { runs, failures, rows }
 }
+
+/// The design of Case 3 and a description of where it came from.
+pub fn case3_design() -> (Vec<(f64, f64)>, String) {
+    (paper_table2_design(), "the paper's Table II design (search band [1, 100] Hz)".to_string())
+}
+
+/// All three cases of Table I with one noise seed.
+pub fn all_cases(truth: &PronySeries, seed: u64) -> Vec<CaseResult> {
+    let (d3, why3) = case3_design();
+    vec![
+        run_case("case1", "Case 1 input (1, 10, 100, 1000 Hz, equal amplitudes), no noise".into(), truth, &case1_design(), None, seed),
+        run_case(
+            "case2",
+            format!("Case 1 input, band-limited white output noise, SNR {SNR_CASE2}"),
+            truth,
+            &case1_design(),
+            Some(SNR_CASE2),
+            seed,
+        ),
+        run_case("case3", format!("{why3}, output noise SNR {SNR_CASE3}"), truth, &d3, Some(SNR_CASE3), seed),
+    ]
+}
