@@ -4,6 +4,7 @@
 use clap::{Parser, Subcommand};
 
 pub mod reproduce;
+pub mod run;
 
 /// viscoprobe — rapid broadband nanomechanical spectroscopy of soft materials.
 #[derive(Debug, Parser)]
@@ -18,11 +19,14 @@ pub enum Command {
     /// Regenerate the paper's simulation studies and compare estimators against the truth.
     #[command(subcommand)]
     Reproduce(reproduce::ReproduceCommand),
+    /// Run a closed-loop measurement from a configuration file (default config/sim-pdms.toml).
+    Run(run::RunArgs),
 }
 
 /// Runs the parsed command line.
 pub fn dispatch(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Reproduce(cmd) => reproduce::run(cmd),
+        Command::Run(args) => run::run(args),
     }
 }
