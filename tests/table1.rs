@@ -16,7 +16,10 @@ fn case1_arx_and_ml_are_exact() {
     let arx = c1.arx.estimate.as_ref().expect("ARX on noise-free data");
     let e = error_pct(&truth, &arx.values());
     assert!(max_abs(&e) < 1.0, "ARX errors {e:?}");
-    assert!(max_abs(&e) < 1e-6, "noise-free ARX should be exact to rounding: {e:?}");
+    assert!(
+        max_abs(&e) < 1e-6,
+        "noise-free ARX should be exact to rounding: {e:?}"
+    );
     let ml = c1.ml.as_ref().expect("ML on noise-free data");
     assert!(max_abs(&error_pct(&truth, &ml.values())) < 1e-6);
 }
@@ -30,10 +33,17 @@ fn case2_arx_fails_and_ml_does_not() {
         let c2 = &cases[1];
         let arx_vals = match &c2.arx.estimate {
             Ok(e) => e.values(),
-            Err(_) => c2.arx.paper_values.clone().expect("the paper's procedure always prints numbers"),
+            Err(_) => c2
+                .arx
+                .paper_values
+                .clone()
+                .expect("the paper's procedure always prints numbers"),
         };
         let arx_err = error_pct(&truth, &arx_vals);
-        assert!(max_abs(&arx_err) > 20.0, "seed {seed}: ARX should fail under noise, errors {arx_err:?}");
+        assert!(
+            max_abs(&arx_err) > 20.0,
+            "seed {seed}: ARX should fail under noise, errors {arx_err:?}"
+        );
         let ml = c2.ml.as_ref().expect("ML fit");
         let ml_err = error_pct(&truth, &ml.values());
         assert!(max_abs(&ml_err) < 1.0, "seed {seed}: ML errors {ml_err:?}");
@@ -41,10 +51,17 @@ fn case2_arx_fails_and_ml_does_not() {
         for (i, t) in truth.to_vec().iter().enumerate() {
             // The fit's own standard deviation is the CRLB evaluated at the estimate.
             let rel_std = ml.std[i] / ml.values()[i];
-            assert!((rel_std / crlb[i] - 1.0).abs() < 0.25, "seed {seed} param {i}: std {rel_std} vs CRLB {}", crlb[i]);
+            assert!(
+                (rel_std / crlb[i] - 1.0).abs() < 0.25,
+                "seed {seed} param {i}: std {rel_std} vs CRLB {}",
+                crlb[i]
+            );
             let [lo, hi] = ml.ci95[i];
             // 7 params × 3 seeds at 95 %: allow none to miss by more than a whisker.
-            assert!(*t > lo - 0.5 * (hi - lo) && *t < hi + 0.5 * (hi - lo), "seed {seed} param {i}: {t} vs [{lo}, {hi}]");
+            assert!(
+                *t > lo - 0.5 * (hi - lo) && *t < hi + 0.5 * (hi - lo),
+                "seed {seed} param {i}: {t} vs [{lo}, {hi}]"
+            );
         }
     }
 }
@@ -56,7 +73,11 @@ fn case3_ml_within_one_percent() {
     let cases = table1::all_cases(&truth, 1);
     let ml = cases[2].ml.as_ref().expect("ML fit");
     let e = error_pct(&truth, &ml.values());
-    assert!(max_abs(&e) < 1.0, "Case 3 ML errors {e:?} with design {:?}", cases[2].lines);
+    assert!(
+        max_abs(&e) < 1.0,
+        "Case 3 ML errors {e:?} with design {:?}",
+        cases[2].lines
+    );
 }
 
 /// Efficiency over 200 seeds: empirical std ≤ 1.3 × CRLB for every parameter, no failures,
@@ -67,10 +88,26 @@ fn ml_is_efficient_over_200_seeds() {
     assert_eq!(eff.failures, 0);
     for r in &eff.rows {
         let ratio = r.std_rel / r.crlb_rel;
-        eprintln!("{:<5} CRLB {:.4} %  std {:.4} %  ratio {:.3}  bias {:+.4} %", r.name, 100.0 * r.crlb_rel, 100.0 * r.std_rel, ratio, 100.0 * r.mean_rel);
+        eprintln!(
+            "{:<5} CRLB {:.4} %  std {:.4} %  ratio {:.3}  bias {:+.4} %",
+            r.name,
+            100.0 * r.crlb_rel,
+            100.0 * r.std_rel,
+            ratio,
+            100.0 * r.mean_rel
+        );
         assert!(ratio <= 1.3, "{}: std/CRLB = {ratio}", r.name);
-        assert!(ratio >= 0.7, "{}: std/CRLB = {ratio} is below the bound: the CRLB or the scatter is wrong", r.name);
+        assert!(
+            ratio >= 0.7,
+            "{}: std/CRLB = {ratio} is below the bound: the CRLB or the scatter is wrong",
+            r.name
+        );
         // Bias must be small against the scatter: |mean| < 4 standard errors of the mean.
-        assert!(r.mean_rel.abs() < 4.0 * r.std_rel / (200f64).sqrt(), "{}: bias {}", r.name, r.mean_rel);
+        assert!(
+            r.mean_rel.abs() < 4.0 * r.std_rel / (200f64).sqrt(),
+            "{}: bias {}",
+            r.name,
+            r.mean_rel
+        );
     }
 }

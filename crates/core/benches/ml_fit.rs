@@ -9,9 +9,18 @@ use viscoprobe_core::studies::table1::{self, amplitudes_at_case1_power, case1_de
 
 fn bench_fits(c: &mut Criterion) {
     let truth = PronySeries::paper_pdms();
-    let exp = table1::simulate(&truth, &amplitudes_at_case1_power(&case1_design()), Some(SNR_CASE2), 1);
-    c.bench_function("ml_fit_2s_8kHz_3terms", |b| b.iter(|| table1::fit_ml(black_box(&exp), 3).unwrap()));
-    c.bench_function("arx_fit_2s_8kHz_3terms", |b| b.iter(|| table1::fit_paper_arx(black_box(&exp), 3)));
+    let exp = table1::simulate(
+        &truth,
+        &amplitudes_at_case1_power(&case1_design()),
+        Some(SNR_CASE2),
+        1,
+    );
+    c.bench_function("ml_fit_2s_8kHz_3terms", |b| {
+        b.iter(|| table1::fit_ml(black_box(&exp), 3).unwrap())
+    });
+    c.bench_function("arx_fit_2s_8kHz_3terms", |b| {
+        b.iter(|| table1::fit_paper_arx(black_box(&exp), 3))
+    });
 }
 
 criterion_group!(benches, bench_fits);

@@ -33,12 +33,18 @@ pub struct Contact {
 impl Contact {
     /// Sphere with the paper's incompressible sample (ν = 0.5).
     pub fn sphere(radius_m: f64) -> Self {
-        Self { tip: TipGeometry::Sphere { radius_m }, poisson_ratio: 0.5 }
+        Self {
+            tip: TipGeometry::Sphere { radius_m },
+            poisson_ratio: 0.5,
+        }
     }
 
     /// Cone with an incompressible sample (ν = 0.5).
     pub fn cone(half_angle_rad: f64) -> Self {
-        Self { tip: TipGeometry::Cone { half_angle_rad }, poisson_ratio: 0.5 }
+        Self {
+            tip: TipGeometry::Cone { half_angle_rad },
+            poisson_ratio: 0.5,
+        }
     }
 
     /// Factor `c` with `u = c·P`.
@@ -103,7 +109,10 @@ mod tests {
     #[test]
     fn sphere_matches_hertz() {
         let (r, e, nu) = (20e-9, 1.0e6, 0.3);
-        let c = Contact { tip: TipGeometry::Sphere { radius_m: r }, poisson_ratio: nu };
+        let c = Contact {
+            tip: TipGeometry::Sphere { radius_m: r },
+            poisson_ratio: nu,
+        };
         let h: f64 = 15e-9;
         let p = 4.0 / 3.0 * e / (1.0 - nu * nu) * r.sqrt() * h.powf(1.5);
         let h_back = c.elastic_indentation(p, 1.0 / e);

@@ -88,7 +88,12 @@ pub fn tustin(model: &PronySeries, fs_hz: f64) -> DiscreteTf {
     let mut b: Vec<f64> = a.iter().map(|c| model.j0_per_pa * c).collect();
     for (i, term) in model.terms.iter().enumerate() {
         let ci = 1.0 + t / (2.0 * term.tau_s);
-        let others: Vec<f64> = poles.iter().enumerate().filter(|(j, _)| *j != i).map(|(_, p)| *p).collect();
+        let others: Vec<f64> = poles
+            .iter()
+            .enumerate()
+            .filter(|(j, _)| *j != i)
+            .map(|(_, p)| *p)
+            .collect();
         // (z − 1)·Π_{j≠i}(z − zj), descending powers of z = ascending powers of z⁻¹.
         let num = poly_mul(&[1.0, -1.0], &poly_from_roots(&others));
         for (k, c) in num.iter().enumerate() {
@@ -146,10 +151,16 @@ pub fn d2c_by_pole(tf: &DiscreteTf) -> Result<PronySeries, D2cError> {
         .iter()
         .map(|&z| {
             let residue = poly_eval(&b, z) / poly_eval(&da, z);
-            PronyTerm { j_per_pa: 2.0 * residue / (1.0 - z * z), tau_s: t * (1.0 + z) / (2.0 * (1.0 - z)) }
+            PronyTerm {
+                j_per_pa: 2.0 * residue / (1.0 - z * z),
+                tau_s: t * (1.0 + z) / (2.0 * (1.0 - z)),
+            }
         })
         .collect();
-    Ok(PronySeries { j0_per_pa: j0, terms })
+    Ok(PronySeries {
+        j0_per_pa: j0,
+        terms,
+    })
 }
 
 /// One partial-fraction term of a discrete model whose pole may be complex.
@@ -180,7 +191,10 @@ pub fn d2c_complex(tf: &DiscreteTf) -> Result<(f64, Vec<ComplexTerm>), D2cError>
         .iter()
         .map(|&z| {
             let residue = poly_eval_c(&b, z) / poly_eval_c(&da, z);
-            ComplexTerm { j: 2.0 * residue / (1.0 - z * z), tau: t * (1.0 + z) / (2.0 * (1.0 - z)) }
+            ComplexTerm {
+                j: 2.0 * residue / (1.0 - z * z),
+                tau: t * (1.0 + z) / (2.0 * (1.0 - z)),
+            }
         })
         .collect();
     Ok((poly_eval(&b, 1.0) / poly_eval(&a, 1.0), terms))
@@ -237,7 +251,9 @@ pub fn simulate_tustin(model: &PronySeries, u: &[f64], fs_hz: f64) -> Vec<f64> {
 }
 
 fn poly_from_roots(roots: &[f64]) -> Vec<f64> {
-    roots.iter().fold(vec![1.0], |p, r| poly_mul(&p, &[1.0, -r]))
+    roots
+        .iter()
+        .fold(vec![1.0], |p, r| poly_mul(&p, &[1.0, -r]))
 }
 
 fn poly_mul(p: &[f64], q: &[f64]) -> Vec<f64> {
@@ -256,12 +272,17 @@ fn poly_eval(p: &[f64], x: f64) -> f64 {
 }
 
 fn poly_eval_c(p: &[f64], x: Complex64) -> Complex64 {
-    p.iter().fold(Complex64::new(0.0, 0.0), |acc, c| acc * x + c)
+    p.iter()
+        .fold(Complex64::new(0.0, 0.0), |acc, c| acc * x + c)
 }
 
 fn poly_derivative(p: &[f64]) -> Vec<f64> {
     let n = p.len() - 1;
-    p[..n].iter().enumerate().map(|(i, c)| c * (n - i) as f64).collect()
+    p[..n]
+        .iter()
+        .enumerate()
+        .map(|(i, c)| c * (n - i) as f64)
+        .collect()
 }
 
 /// Roots of a monic polynomial (descending powers) from the companion matrix's eigenvalues,
@@ -328,7 +349,11 @@ mod tests {
             let z = Complex64::from_polar(1.0, 2.0 * std::f64::consts::PI * f / fs);
             let zi = 1.0 / z;
             let eval = |p: &[f64]| {
-                p.iter().enumerate().fold(Complex64::new(0.0, 0.0), |acc, (k, c)| acc + c * zi.powi(k as i32))
+                p.iter()
+                    .enumerate()
+                    .fold(Complex64::new(0.0, 0.0), |acc, (k, c)| {
+                        acc + c * zi.powi(k as i32)
+                    })
             };
             let g_tf = eval(&tf.b) / eval(&tf.a);
             let t = 1.0 / fs;
@@ -346,7 +371,13 @@ mod tests {
     /// Step response of a one-term material sampled at 100 kHz follows the closed-form creep.
     #[test]
     fn step_creep_follows_closed_form() {
-        let m = PronySeries::new(4e-6, vec![PronyTerm { j_per_pa: 1e-6, tau_s: 5e-3 }]);
+        let m = PronySeries::new(
+            4e-6,
+            vec![PronyTerm {
+                j_per_pa: 1e-6,
+                tau_s: 5e-3,
+            }],
+        );
         let fs = 100_000.0;
         let mut u = vec![0.0; 10];
         u.extend(std::iter::repeat_n(1.0, 3000));
@@ -357,7 +388,11 @@ mod tests {
             // Tustin's response to a sampled step is the continuous one half a sample later:
             // z^n/(1 + T/2τ) = exp(−(n + ½)T/τ)·(1 + O((T/τ)³n)).
             let exact = m.creep_compliance(t + 0.5 / fs);
-            assert!((y1[k] - exact).abs() < 1e-6 * exact, "k {k}: {} vs {exact}", y1[k]);
+            assert!(
+                (y1[k] - exact).abs() < 1e-6 * exact,
+                "k {k}: {} vs {exact}",
+                y1[k]
+            );
             assert!((y1[k] - y2[k]).abs() < 1e-12 * exact);
         }
     }
@@ -365,7 +400,11 @@ mod tests {
     #[test]
     fn complex_poles_are_refused() {
         // A(z) = z² − 1.6z + 0.8 has poles 0.8 ± 0.4j.
-        let tf = DiscreteTf { b: vec![1.0, 0.0, 0.0], a: vec![1.0, -1.6, 0.8], fs_hz: 1000.0 };
+        let tf = DiscreteTf {
+            b: vec![1.0, 0.0, 0.0],
+            a: vec![1.0, -1.6, 0.8],
+            fs_hz: 1000.0,
+        };
         assert!(matches!(d2c(&tf), Err(D2cError::ComplexPole { .. })));
     }
 }

@@ -24,7 +24,10 @@ pub enum NoiseSpectrum {
     /// A measured spectrum: at each frequency (Hz, ascending) the per-sample variance of the
     /// white noise that would have the same density there. Linear interpolation between
     /// points, constant beyond the ends.
-    Measured { freq_hz: Vec<f64>, variance: Vec<f64> },
+    Measured {
+        freq_hz: Vec<f64>,
+        variance: Vec<f64>,
+    },
 }
 
 impl NoiseSpectrum {
@@ -32,7 +35,10 @@ impl NoiseSpectrum {
     pub fn variance_at(&self, freq_hz: f64) -> f64 {
         match self {
             NoiseSpectrum::White { std } => std * std,
-            NoiseSpectrum::Measured { freq_hz: f, variance: v } => {
+            NoiseSpectrum::Measured {
+                freq_hz: f,
+                variance: v,
+            } => {
                 if f.is_empty() {
                     return f64::NAN;
                 }
@@ -92,7 +98,8 @@ pub fn fisher_multisine(
     let p = model.n_params();
     let mut m = DMatrix::<f64>::zeros(p, p);
     for line in lines {
-        let w = n_samples as f64 * line.amplitude * line.amplitude / (2.0 * noise.variance_at(line.freq_hz));
+        let w = n_samples as f64 * line.amplitude * line.amplitude
+            / (2.0 * noise.variance_at(line.freq_hz));
         m += line_information(model, sampling, line.freq_hz) * w;
     }
     m
@@ -102,7 +109,11 @@ pub fn fisher_multisine(
 /// `sqrt(diag(M⁻¹))`. `None` when M is singular (the design cannot identify the model).
 pub fn relative_crlb(fisher: &DMatrix<f64>) -> Option<Vec<f64>> {
     let inv = crate::linalg::spd_inverse(fisher)?;
-    Some((0..inv.nrows()).map(|i| inv[(i, i)].max(0.0).sqrt()).collect())
+    Some(
+        (0..inv.nrows())
+            .map(|i| inv[(i, i)].max(0.0).sqrt())
+            .collect(),
+    )
 }
 
 #[cfg(test)]
@@ -126,7 +137,11 @@ mod tests {
                 let fd = (samp.response(&PronySeries::from_vec(&up), f)
                     - samp.response(&PronySeries::from_vec(&dn), f))
                     / (2.0 * h);
-                assert!((fd - g[k]).norm() < 1e-6 * m.j0_per_pa, "f {f} k {k}: {fd} vs {}", g[k]);
+                assert!(
+                    (fd - g[k]).norm() < 1e-6 * m.j0_per_pa,
+                    "f {f} k {k}: {fd} vs {}",
+                    g[k]
+                );
             }
         }
     }
@@ -139,7 +154,10 @@ mod tests {
         let fim = fisher_multisine(
             &m,
             &Sampling::Continuous,
-            &[Line { freq_hz: 10.0, amplitude: a }],
+            &[Line {
+                freq_hz: 10.0,
+                amplitude: a,
+            }],
             n,
             &NoiseSpectrum::White { std },
         );
@@ -151,8 +169,23 @@ mod tests {
     #[test]
     fn too_few_lines_are_singular() {
         let m = PronySeries::paper_pdms();
-        let lines: Vec<Line> = [1.0, 10.0, 100.0].iter().map(|&f| Line { freq_hz: f, amplitude: 1.0 }).collect();
-        let fim = fisher_multisine(&m, &Sampling::Continuous, &lines, 16000, &NoiseSpectrum::White { std: 1e-9 });
-        assert!(relative_crlb(&fim).is_none(), "3 lines cannot identify 7 parameters");
+        let lines: Vec<Line> = [1.0, 10.0, 100.0]
+            .iter()
+            .map(|&f| Line {
+                freq_hz: f,
+                amplitude: 1.0,
+            })
+            .collect();
+        let fim = fisher_multisine(
+            &m,
+            &Sampling::Continuous,
+            &lines,
+            16000,
+            &NoiseSpectrum::White { std: 1e-9 },
+        );
+        assert!(
+            relative_crlb(&fim).is_none(),
+            "3 lines cannot identify 7 parameters"
+        );
     }
 }

@@ -12,7 +12,7 @@ pub const SINGULAR_RCOND: f64 = 1e-13;
 pub fn spd_inverse(m: &DMatrix<f64>) -> Option<DMatrix<f64>> {
     let n = m.nrows();
     let d: Vec<f64> = (0..n).map(|i| m[(i, i)]).collect();
-    if d.iter().any(|x| !(*x > 0.0) || !x.is_finite()) {
+    if d.iter().any(|x| x.is_nan() || *x <= 0.0 || !x.is_finite()) {
         return None;
     }
     let s: Vec<f64> = d.iter().map(|x| 1.0 / x.sqrt()).collect();

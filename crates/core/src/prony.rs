@@ -41,9 +41,18 @@ impl PronySeries {
         Self::new(
             9.11e-6,
             vec![
-                PronyTerm { j_per_pa: 2.08e-6, tau_s: 25.28e-3 },
-                PronyTerm { j_per_pa: 1.53e-6, tau_s: 2.9e-3 },
-                PronyTerm { j_per_pa: 1.51e-6, tau_s: 0.474e-3 },
+                PronyTerm {
+                    j_per_pa: 2.08e-6,
+                    tau_s: 25.28e-3,
+                },
+                PronyTerm {
+                    j_per_pa: 1.53e-6,
+                    tau_s: 2.9e-3,
+                },
+                PronyTerm {
+                    j_per_pa: 1.51e-6,
+                    tau_s: 0.474e-3,
+                },
             ],
         )
     }
@@ -69,10 +78,16 @@ impl PronySeries {
 
     /// Inverse of [`Self::to_vec`]; the result is re-sorted slowest first.
     pub fn from_vec(v: &[f64]) -> Self {
-        assert!(v.len() % 2 == 1, "a Prony parameter vector has odd length 2n+1");
+        assert!(
+            v.len() % 2 == 1,
+            "a Prony parameter vector has odd length 2n+1"
+        );
         let n = (v.len() - 1) / 2;
         let terms = (0..n)
-            .map(|i| PronyTerm { j_per_pa: v[1 + i], tau_s: v[1 + n + i] })
+            .map(|i| PronyTerm {
+                j_per_pa: v[1 + i],
+                tau_s: v[1 + n + i],
+            })
             .collect();
         Self::new(v[0], terms)
     }
@@ -87,7 +102,12 @@ impl PronySeries {
 
     /// Creep compliance J(t), 1/Pa, for t ≥ 0 s.
     pub fn creep_compliance(&self, t_s: f64) -> f64 {
-        self.j0_per_pa - self.terms.iter().map(|t| t.j_per_pa * (-t_s / t.tau_s).exp()).sum::<f64>()
+        self.j0_per_pa
+            - self
+                .terms
+                .iter()
+                .map(|t| t.j_per_pa * (-t_s / t.tau_s).exp())
+                .sum::<f64>()
     }
 
     /// Transfer function `G(s)` from u to y evaluated at a complex `s` (rad/s).
@@ -149,7 +169,10 @@ impl PronySeries {
     /// compliance is positive: the conditions for a physical creep compliance.
     pub fn is_physical(&self) -> bool {
         self.j0_per_pa.is_finite()
-            && self.terms.iter().all(|t| t.j_per_pa > 0.0 && t.tau_s > 0.0 && t.tau_s.is_finite())
+            && self
+                .terms
+                .iter()
+                .all(|t| t.j_per_pa > 0.0 && t.tau_s > 0.0 && t.tau_s.is_finite())
             && self.instantaneous_compliance() > 0.0
     }
 }
@@ -159,7 +182,13 @@ mod tests {
     use super::*;
 
     fn one_term() -> PronySeries {
-        PronySeries::new(4e-6, vec![PronyTerm { j_per_pa: 1e-6, tau_s: 1e-2 }])
+        PronySeries::new(
+            4e-6,
+            vec![PronyTerm {
+                j_per_pa: 1e-6,
+                tau_s: 1e-2,
+            }],
+        )
     }
 
     #[test]
@@ -207,6 +236,9 @@ mod tests {
         assert_eq!(p.terms[0].tau_s, 1e-1);
         assert_eq!(p.terms[0].j_per_pa, 2.0e-6);
         assert_eq!(PronySeries::from_vec(&p.to_vec()), p);
-        assert_eq!(PronySeries::param_names(2), ["J0", "J1", "J2", "tau1", "tau2"]);
+        assert_eq!(
+            PronySeries::param_names(2),
+            ["J0", "J1", "J2", "tau1", "tau2"]
+        );
     }
 }

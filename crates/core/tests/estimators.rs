@@ -13,7 +13,9 @@ const FS: f64 = 8000.0;
 /// A ramp to `peak` over `ramp_s`, then a hold: a creep test.
 fn ramp_hold(peak: f64, ramp_s: f64, total_s: f64) -> Vec<f64> {
     let n = (total_s * FS) as usize;
-    (0..n).map(|i| (i as f64 / FS / ramp_s).min(1.0) * peak).collect()
+    (0..n)
+        .map(|i| (i as f64 / FS / ramp_s).min(1.0) * peak)
+        .collect()
 }
 
 /// Three lines cannot identify seven parameters: the ML estimator says so.
@@ -26,7 +28,12 @@ fn ml_refuses_under_determined_data() {
     let u2: Vec<f64> = u.iter().copied().cycle().take(2 * np).collect();
     let err = fit_periodic(&u2, &y, FS, &FrequencyFitOptions::new(3, FS, 2)).unwrap_err();
     match err {
-        EstimateError::UnderDetermined { lines, params, needed, .. } => {
+        EstimateError::UnderDetermined {
+            lines,
+            params,
+            needed,
+            ..
+        } => {
             assert_eq!((lines, params, needed), (3, 7, 4));
         }
         other => panic!("expected UnderDetermined, got {other}"),
@@ -39,19 +46,42 @@ fn ml_refuses_under_determined_data() {
 fn estimators_refuse_bad_input() {
     let u = vec![1.0; 1000];
     let mut y = vec![0.0; 1000];
-    assert!(matches!(fit_time_domain(&u, &y, FS, &TimeFitOptions::new(1)), Err(EstimateError::NoExcitation(_))));
-    assert!(matches!(fit_arx(&u[..10], &y, FS, 1), Err(EstimateError::LengthMismatch { .. })));
+    assert!(matches!(
+        fit_time_domain(&u, &y, FS, &TimeFitOptions::new(1)),
+        Err(EstimateError::NoExcitation(_))
+    ));
+    assert!(matches!(
+        fit_arx(&u[..10], &y, FS, 1),
+        Err(EstimateError::LengthMismatch { .. })
+    ));
     y[17] = f64::NAN;
     let u2: Vec<f64> = (0..1000).map(|i| (i as f64).sin()).collect();
-    assert!(matches!(fit_arx(&u2, &y, FS, 1), Err(EstimateError::NonFinite(17))));
+    assert!(matches!(
+        fit_arx(&u2, &y, FS, 1),
+        Err(EstimateError::NonFinite(17))
+    ));
     let y2 = u2.clone();
     assert!(matches!(
-        fit_periodic(&u2[..999], &y2[..999], FS, &FrequencyFitOptions::new(1, FS, 2)),
-        Err(EstimateError::NotWholePeriods { samples: 999, periods: 2 })
+        fit_periodic(
+            &u2[..999],
+            &y2[..999],
+            FS,
+            &FrequencyFitOptions::new(1, FS, 2)
+        ),
+        Err(EstimateError::NotWholePeriods {
+            samples: 999,
+            periods: 2
+        })
     ));
-    assert!(matches!(fit_periodic(&u2, &y2, FS, &FrequencyFitOptions::new(0, FS, 2)), Err(EstimateError::Order(0))));
+    assert!(matches!(
+        fit_periodic(&u2, &y2, FS, &FrequencyFitOptions::new(0, FS, 2)),
+        Err(EstimateError::Order(0))
+    ));
     let zeros = vec![0.0; 1000];
-    assert!(matches!(fit_periodic(&zeros, &y2, FS, &FrequencyFitOptions::new(1, FS, 2)), Err(EstimateError::NoExcitation(_))));
+    assert!(matches!(
+        fit_periodic(&zeros, &y2, FS, &FrequencyFitOptions::new(1, FS, 2)),
+        Err(EstimateError::NoExcitation(_))
+    ));
 }
 
 /// Time-domain output error on a fast ramp-and-hold creep test recovers a two-term
@@ -60,7 +90,16 @@ fn estimators_refuse_bad_input() {
 fn output_error_fits_ramp_and_hold() {
     let truth = PronySeries::new(
         5e-6,
-        vec![PronyTerm { j_per_pa: 1.5e-6, tau_s: 0.2 }, PronyTerm { j_per_pa: 1.0e-6, tau_s: 0.01 }],
+        vec![
+            PronyTerm {
+                j_per_pa: 1.5e-6,
+                tau_s: 0.2,
+            },
+            PronyTerm {
+                j_per_pa: 1.0e-6,
+                tau_s: 0.01,
+            },
+        ],
     );
     let u = ramp_hold(1e-3, 0.002, 2.0);
     let y_clean = simulate_tustin(&truth, &u, FS);
@@ -73,14 +112,25 @@ fn output_error_fits_ramp_and_hold() {
         let [lo, hi] = est.ci95[i];
         assert!(lo <= *t && *t <= hi, "param {i}: {t} outside [{lo}, {hi}]");
     }
-    assert!((est.diagnostics.cost_per_dof.sqrt() * rms(&y) - rms(&y_clean) / 500.0).abs() < 0.05 * rms(&y_clean) / 500.0);
+    assert!(
+        (est.diagnostics.cost_per_dof.sqrt() * rms(&y) - rms(&y_clean) / 500.0).abs()
+            < 0.05 * rms(&y_clean) / 500.0
+    );
 }
 
 /// On noise-free data ARX recovers a one-term material exactly, from a step.
 #[test]
 fn arx_is_exact_without_noise() {
-    let truth = PronySeries::new(4e-6, vec![PronyTerm { j_per_pa: 1e-6, tau_s: 5e-3 }]);
-    let u: Vec<f64> = (0..4000).map(|i| if i < 100 { 0.0 } else { 1.0 } + 0.1 * ((i as f64) * 0.05).sin()).collect();
+    let truth = PronySeries::new(
+        4e-6,
+        vec![PronyTerm {
+            j_per_pa: 1e-6,
+            tau_s: 5e-3,
+        }],
+    );
+    let u: Vec<f64> = (0..4000)
+        .map(|i| if i < 100 { 0.0 } else { 1.0 } + 0.1 * ((i as f64) * 0.05).sin())
+        .collect();
     let y = simulate_tustin(&truth, &u, FS);
     let est = fit_arx(&u, &y, FS, 1).unwrap();
     for (t, e) in truth.to_vec().iter().zip(est.values()) {

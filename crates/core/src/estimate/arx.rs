@@ -26,20 +26,31 @@ pub struct ArxFit {
 }
 
 /// Solves the ARX least-squares problem (eqs. 6–7) of order `order`.
-pub fn arx_least_squares(u: &[f64], y: &[f64], fs_hz: f64, order: usize) -> Result<ArxFit, EstimateError> {
+pub fn arx_least_squares(
+    u: &[f64],
+    y: &[f64],
+    fs_hz: f64,
+    order: usize,
+) -> Result<ArxFit, EstimateError> {
     let n = order;
     if n == 0 {
         return Err(EstimateError::Order(0));
     }
     if u.len() != y.len() {
-        return Err(EstimateError::LengthMismatch { input: u.len(), output: y.len() });
+        return Err(EstimateError::LengthMismatch {
+            input: u.len(),
+            output: y.len(),
+        });
     }
     check_finite(u)?;
     check_finite(y)?;
     let n_theta = 2 * n + 1;
     let rows = u.len().saturating_sub(n);
     if rows < 2 * n_theta {
-        return Err(EstimateError::TooFewSamples { samples: u.len(), params: n_theta });
+        return Err(EstimateError::TooFewSamples {
+            samples: u.len(),
+            params: n_theta,
+        });
     }
     // Column scaling keeps the regression well conditioned whatever the units of u and y.
     let su = rms(u).max(1e-300);
@@ -60,7 +71,9 @@ pub fn arx_least_squares(u: &[f64], y: &[f64], fs_hz: f64, order: usize) -> Resu
             "the ARX regressors are linearly dependent (input not persistently exciting)".into(),
         ));
     }
-    let theta_s = svd.solve(&target, 0.0).map_err(|e| EstimateError::NoExcitation(e.to_string()))?;
+    let theta_s = svd
+        .solve(&target, 0.0)
+        .map_err(|e| EstimateError::NoExcitation(e.to_string()))?;
     let resid = &target - &phi * &theta_s;
     let dof = rows - n_theta;
     let s2 = resid.norm_squared() / dof as f64;
@@ -68,9 +81,13 @@ pub fn arx_least_squares(u: &[f64], y: &[f64], fs_hz: f64, order: usize) -> Resu
     let inv_s2 = svd.singular_values.map(|s| 1.0 / (s * s));
     let cov_s = &v * DMatrix::from_diagonal(&inv_s2) * v.transpose() * s2;
     // Undo the column scaling: a_i = θ_i, b_i = θ_i·sy/su.
-    let unscale: Vec<f64> = (0..n_theta).map(|c| if c < n { 1.0 } else { sy / su }).collect();
+    let unscale: Vec<f64> = (0..n_theta)
+        .map(|c| if c < n { 1.0 } else { sy / su })
+        .collect();
     let theta: Vec<f64> = (0..n_theta).map(|c| theta_s[c] * unscale[c]).collect();
-    let cov_theta = DMatrix::from_fn(n_theta, n_theta, |i, j| cov_s[(i, j)] * unscale[i] * unscale[j]);
+    let cov_theta = DMatrix::from_fn(n_theta, n_theta, |i, j| {
+        cov_s[(i, j)] * unscale[i] * unscale[j]
+    });
     Ok(ArxFit {
         tf: to_tf(&theta, n, fs_hz),
         theta,
@@ -82,14 +99,27 @@ pub fn arx_least_squares(u: &[f64], y: &[f64], fs_hz: f64, order: usize) -> Resu
 }
 
 fn to_tf(th: &[f64], n: usize, fs_hz: f64) -> DiscreteTf {
-    DiscreteTf { a: std::iter::once(1.0).chain(th[..n].iter().copied()).collect(), b: th[n..].to_vec(), fs_hz }
+    DiscreteTf {
+        a: std::iter::once(1.0)
+            .chain(th[..n].iter().copied())
+            .collect(),
+        b: th[n..].to_vec(),
+        fs_hz,
+    }
 }
 
 /// Fits an ARX model of order `order` and maps it to a Prony series.
 pub fn fit_arx(u: &[f64], y: &[f64], fs_hz: f64, order: usize) -> Result<Estimate, EstimateError> {
     let n = order;
     let fit = arx_least_squares(u, y, fs_hz, order)?;
-    let ArxFit { theta, cov_theta, rss, dof, rows, .. } = fit;
+    let ArxFit {
+        theta,
+        cov_theta,
+        rss,
+        dof,
+        rows,
+        ..
+    } = fit;
     let n_theta = theta.len();
     let s2 = rss / dof as f64;
     let to_tf = |th: &[f64]| to_tf(th, n, fs_hz);
@@ -117,14 +147,25 @@ pub fn fit_arx(u: &[f64], y: &[f64], fs_hz: f64, order: usize) -> Result<Estimat
     let covariance = if jac_ok {
         &jac * cov_theta * jac.transpose()
     } else {
-        warnings.push("the d2c map is not differentiable here (poles about to turn complex): no intervals".into());
+        warnings.push(
+            "the d2c map is not differentiable here (poles about to turn complex): no intervals"
+                .into(),
+        );
         DMatrix::from_element(n_theta, n_theta, f64::NAN)
     };
     if !model.is_physical() {
-        warnings.push("not a physical creep compliance (a negative J, τ or instantaneous compliance)".into());
+        warnings.push(
+            "not a physical creep compliance (a negative J, τ or instantaneous compliance)".into(),
+        );
     }
-    let std: Vec<f64> = (0..n_theta).map(|i| covariance[(i, i)].max(0.0).sqrt()).collect();
-    let ci95 = values.iter().zip(&std).map(|(v, s)| [v - Z95 * s, v + Z95 * s]).collect();
+    let std: Vec<f64> = (0..n_theta)
+        .map(|i| covariance[(i, i)].max(0.0).sqrt())
+        .collect();
+    let ci95 = values
+        .iter()
+        .zip(&std)
+        .map(|(v, s)| [v - Z95 * s, v + Z95 * s])
+        .collect();
     let diagnostics = Diagnostics {
         cost: rss,
         dof,

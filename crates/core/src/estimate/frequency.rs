@@ -105,12 +105,18 @@ pub fn periodic_spectra(
     smoothing_bins: usize,
 ) -> Result<PeriodicSpectra, EstimateError> {
     if u.len() != y.len() {
-        return Err(EstimateError::LengthMismatch { input: u.len(), output: y.len() });
+        return Err(EstimateError::LengthMismatch {
+            input: u.len(),
+            output: y.len(),
+        });
     }
     check_finite(u)?;
     check_finite(y)?;
-    if periods == 0 || u.len() % periods != 0 || u.len() / periods < 4 {
-        return Err(EstimateError::NotWholePeriods { samples: u.len(), periods });
+    if periods == 0 || !u.len().is_multiple_of(periods) || u.len() / periods < 4 {
+        return Err(EstimateError::NotWholePeriods {
+            samples: u.len(),
+            periods,
+        });
     }
     let np = u.len() / periods;
     let half = np / 2; // bins 1..half are positive frequencies (half itself only if np odd)
@@ -119,7 +125,8 @@ pub fn periodic_spectra(
     let spectra = |x: &[f64]| -> Vec<Vec<Complex64>> {
         x.chunks(np)
             .map(|chunk| {
-                let mut buf: Vec<Complex64> = chunk.iter().map(|v| Complex64::new(*v, 0.0)).collect();
+                let mut buf: Vec<Complex64> =
+                    chunk.iter().map(|v| Complex64::new(*v, 0.0)).collect();
                 fft.process(&mut buf);
                 buf
             })
@@ -155,7 +162,9 @@ pub fn periodic_spectra(
     }
     let max_u = (1..nb).map(|k| um[k].norm()).fold(0.0, f64::max);
     if max_u == 0.0 {
-        return Err(EstimateError::NoExcitation("the input spectrum is zero on every line".into()));
+        return Err(EstimateError::NoExcitation(
+            "the input spectrum is zero on every line".into(),
+        ));
     }
     let excited: Vec<usize> = match selection {
         LineSelection::Auto { relative } => (1..nb)
@@ -180,21 +189,46 @@ pub fn periodic_spectra(
         }
         v
     };
-    let max_y = excited.iter().map(|&k| ym[k].norm_sqr()).fold(0.0, f64::max);
+    let max_y = excited
+        .iter()
+        .map(|&k| ym[k].norm_sqr())
+        .fold(0.0, f64::max);
     let lines: Vec<SpectralLine> = excited
         .iter()
         .map(|&k| {
             let (var_u, var_y, cov_yu) = if periods >= 2 {
-                (smooth(&vu, k, smoothing_bins), smooth(&vy, k, smoothing_bins), smooth_c(&cyu, k, smoothing_bins))
+                (
+                    smooth(&vu, k, smoothing_bins),
+                    smooth(&vy, k, smoothing_bins),
+                    smooth_c(&cyu, k, smoothing_bins),
+                )
             } else {
                 // One period: the noise level is what the non-excited neighbours hold.
-                (0.0, neighbours_power(&ym, &is_excited, k, 2 * smoothing_bins), Complex64::new(0.0, 0.0))
+                (
+                    0.0,
+                    neighbours_power(&ym, &is_excited, k, 2 * smoothing_bins),
+                    Complex64::new(0.0, 0.0),
+                )
             };
-            SpectralLine { bin: k, freq_hz: k as f64 * fs_hz / np as f64, u: um[k], y: ym[k], var_u, var_y, cov_yu }
+            SpectralLine {
+                bin: k,
+                freq_hz: k as f64 * fs_hz / np as f64,
+                u: um[k],
+                y: ym[k],
+                var_u,
+                var_y,
+                cov_yu,
+            }
         })
         .collect();
     let noise_free = lines.iter().all(|l| l.var_y <= 1e-24 * max_y);
-    Ok(PeriodicSpectra { fs_hz, period_samples: np, periods, lines, noise_free })
+    Ok(PeriodicSpectra {
+        fs_hz,
+        period_samples: np,
+        periods,
+        lines,
+        noise_free,
+    })
 }
 
 fn window(k: usize, w: usize, len: usize) -> std::ops::Range<usize> {
@@ -215,7 +249,10 @@ fn smooth_c(v: &[Complex64], k: usize, w: usize) -> Complex64 {
 
 fn neighbours_power(y: &[Complex64], excited: &[bool], k: usize, w: usize) -> f64 {
     let r = window(k, w, y.len());
-    let vals: Vec<f64> = r.filter(|&j| !excited[j]).map(|j| y[j].norm_sqr()).collect();
+    let vals: Vec<f64> = r
+        .filter(|&j| !excited[j])
+        .map(|j| y[j].norm_sqr())
+        .collect();
     if vals.is_empty() {
         0.0
     } else {
@@ -224,8 +261,20 @@ fn neighbours_power(y: &[Complex64], excited: &[bool], k: usize, w: usize) -> f6
 }
 
 /// Fits a Prony series of `opts.order` terms to periodic data.
-pub fn fit_periodic(u: &[f64], y: &[f64], fs_hz: f64, opts: &FrequencyFitOptions) -> Result<Estimate, EstimateError> {
-    let spectra = periodic_spectra(u, y, fs_hz, opts.periods, &opts.lines, opts.noise_smoothing_bins)?;
+pub fn fit_periodic(
+    u: &[f64],
+    y: &[f64],
+    fs_hz: f64,
+    opts: &FrequencyFitOptions,
+) -> Result<Estimate, EstimateError> {
+    let spectra = periodic_spectra(
+        u,
+        y,
+        fs_hz,
+        opts.periods,
+        &opts.lines,
+        opts.noise_smoothing_bins,
+    )?;
     fit_spectra(&spectra, opts)
 }
 
@@ -247,7 +296,10 @@ fn response(p: &[f64], n: usize, s: Complex64) -> (Complex64, Vec<Complex64>) {
 }
 
 /// Fits the excited lines of `spectra`.
-pub fn fit_spectra(spectra: &PeriodicSpectra, opts: &FrequencyFitOptions) -> Result<Estimate, EstimateError> {
+pub fn fit_spectra(
+    spectra: &PeriodicSpectra,
+    opts: &FrequencyFitOptions,
+) -> Result<Estimate, EstimateError> {
     let n = opts.order;
     if n == 0 {
         return Err(EstimateError::Order(0));
@@ -264,9 +316,21 @@ pub fn fit_spectra(spectra: &PeriodicSpectra, opts: &FrequencyFitOptions) -> Res
             needed,
         });
     }
-    let s_k: Vec<Complex64> = lines.iter().map(|l| opts.sampling.s_at(l.freq_hz)).collect();
+    let s_k: Vec<Complex64> = lines
+        .iter()
+        .map(|l| opts.sampling.s_at(l.freq_hz))
+        .collect();
     // Without measurable noise, weight each line by its own size so every line counts.
-    let floor: Vec<f64> = lines.iter().map(|l| if spectra.noise_free { 1e-12 * l.y.norm_sqr() } else { 0.0 }).collect();
+    let floor: Vec<f64> = lines
+        .iter()
+        .map(|l| {
+            if spectra.noise_free {
+                1e-12 * l.y.norm_sqr()
+            } else {
+                0.0
+            }
+        })
+        .collect();
     let variance = |i: usize, g: Complex64| -> f64 {
         let l = &lines[i];
         if spectra.noise_free {
@@ -306,20 +370,36 @@ pub fn fit_spectra(spectra: &PeriodicSpectra, opts: &FrequencyFitOptions) -> Res
     };
 
     // Start values: τ grid spanning the excited band, scored by variable projection.
-    let f_lo = lines.iter().map(|l| l.freq_hz).fold(f64::INFINITY, f64::min);
+    let f_lo = lines
+        .iter()
+        .map(|l| l.freq_hz)
+        .fold(f64::INFINITY, f64::min);
     let f_hi = lines.iter().map(|l| l.freq_hz).fold(0.0, f64::max);
     let two_pi = 2.0 * std::f64::consts::PI;
-    let taus = log_grid(0.25 / (two_pi * f_hi), 4.0 / (two_pi * f_lo), opts.grid_size.max(n));
-    let w: Vec<f64> = (0..m).map(|i| 1.0 / variance(i, lines[i].y / lines[i].u).sqrt()).collect();
+    let taus = log_grid(
+        0.25 / (two_pi * f_hi),
+        4.0 / (two_pi * f_lo),
+        opts.grid_size.max(n),
+    );
+    let w: Vec<f64> = (0..m)
+        .map(|i| 1.0 / variance(i, lines[i].y / lines[i].u).sqrt())
+        .collect();
     let stack = |z: &dyn Fn(usize) -> Complex64| -> Vec<f64> {
-        (0..m).map(|i| z(i).re * w[i]).chain((0..m).map(|i| z(i).im * w[i])).collect()
+        (0..m)
+            .map(|i| z(i).re * w[i])
+            .chain((0..m).map(|i| z(i).im * w[i]))
+            .collect()
     };
     let target = stack(&|i| lines[i].y);
     let j0_col = stack(&|i| lines[i].u);
-    let columns: Vec<Vec<f64>> =
-        taus.iter().map(|&t| stack(&|i| -lines[i].u * s_k[i] / (s_k[i] + 1.0 / t))).collect();
-    let mut starts: Vec<Vec<f64>> =
-        grid_starts(&target, &j0_col, &columns, &taus, n, opts.starts).into_iter().map(|s| s.log_params).collect();
+    let columns: Vec<Vec<f64>> = taus
+        .iter()
+        .map(|&t| stack(&|i| -lines[i].u * s_k[i] / (s_k[i] + 1.0 / t)))
+        .collect();
+    let mut starts: Vec<Vec<f64>> = grid_starts(&target, &j0_col, &columns, &taus, n, opts.starts)
+        .into_iter()
+        .map(|s| s.log_params)
+        .collect();
     if let Some(prior) = &opts.extra_start {
         if prior.order() == n && prior.is_physical() {
             starts.push(prior.to_vec().iter().map(|v| v.ln()).collect());
@@ -342,7 +422,9 @@ pub fn fit_spectra(spectra: &PeriodicSpectra, opts: &FrequencyFitOptions) -> Res
         }
     }
     let Some(best) = best else {
-        let (iterations, cost) = last_unconverged.map(|r| (r.iterations, r.cost)).unwrap_or((0, f64::NAN));
+        let (iterations, cost) = last_unconverged
+            .map(|r| (r.iterations, r.cost))
+            .unwrap_or((0, f64::NAN));
         return Err(EstimateError::NoConvergence { iterations, cost });
     };
     let rcond = scaled_rcond(&best.jtj);
@@ -353,7 +435,11 @@ pub fn fit_spectra(spectra: &PeriodicSpectra, opts: &FrequencyFitOptions) -> Res
     let mut diagnostics = Diagnostics {
         cost: best.cost,
         dof,
-        cost_per_dof: if dof > 0 { best.cost / dof as f64 } else { f64::NAN },
+        cost_per_dof: if dof > 0 {
+            best.cost / dof as f64
+        } else {
+            f64::NAN
+        },
         iterations: best.iterations,
         observations: m,
         noise_free: spectra.noise_free,
@@ -364,7 +450,9 @@ pub fn fit_spectra(spectra: &PeriodicSpectra, opts: &FrequencyFitOptions) -> Res
         // Weights were arbitrary: scale by the residual variance instead.
         let s2 = if dof > 0 { best.cost / dof as f64 } else { 0.0 };
         cov *= s2;
-        diagnostics.warnings.push("no measurable noise between periods: intervals from residuals".into());
+        diagnostics
+            .warnings
+            .push("no measurable noise between periods: intervals from residuals".into());
     } else if dof > 0 && best.cost > dof as f64 + 3.0 * (2.0 * dof as f64).sqrt() {
         // The residuals exceed the measured noise: model error or unmodelled noise.
         // Widen the intervals by the excess rather than report false precision.
@@ -375,9 +463,16 @@ pub fn fit_spectra(spectra: &PeriodicSpectra, opts: &FrequencyFitOptions) -> Res
         ));
     }
     if spectra.periods < 2 {
-        diagnostics.warnings.push("one period only: noise taken from non-excited neighbouring lines".into());
+        diagnostics
+            .warnings
+            .push("one period only: noise taken from non-excited neighbouring lines".into());
     }
-    Ok(Estimate::from_log_fit(Method::FrequencyMl, &best.params, cov, diagnostics))
+    Ok(Estimate::from_log_fit(
+        Method::FrequencyMl,
+        &best.params,
+        cov,
+        diagnostics,
+    ))
 }
 
 fn scaled_rcond(m: &DMatrix<f64>) -> f64 {
@@ -388,7 +483,11 @@ fn scaled_rcond(m: &DMatrix<f64>) -> f64 {
 
 /// Cramér–Rao bound (relative, log-parameters) of the lines in `spectra` at `model`, with the
 /// spectra's own noise: what the fit's covariance would be at the truth.
-pub fn crlb_for_spectra(model: &PronySeries, spectra: &PeriodicSpectra, sampling: &Sampling) -> Option<Vec<f64>> {
+pub fn crlb_for_spectra(
+    model: &PronySeries,
+    spectra: &PeriodicSpectra,
+    sampling: &Sampling,
+) -> Option<Vec<f64>> {
     let p = model.n_params();
     let mut fim = DMatrix::<f64>::zeros(p, p);
     let lp: Vec<f64> = model.to_vec().iter().map(|v| v.ln()).collect();

@@ -26,7 +26,12 @@ pub struct LmOptions {
 
 impl Default for LmOptions {
     fn default() -> Self {
-        Self { max_iterations: 300, max_step: 1.5, cost_tolerance: 1e-13, step_tolerance: 1e-11 }
+        Self {
+            max_iterations: 300,
+            max_step: 1.5,
+            cost_tolerance: 1e-13,
+            step_tolerance: 1e-11,
+        }
     }
 }
 
@@ -76,10 +81,13 @@ pub fn solve(p0: &[f64], eval: impl Fn(&[f64]) -> Evaluation, opts: LmOptions) -
             }
             let trial = &p + &step;
             match eval(trial.as_slice()) {
-                Some((r_new, j_new)) if r_new.norm_squared().is_finite() && r_new.norm_squared() < cost => {
+                Some((r_new, j_new))
+                    if r_new.norm_squared().is_finite() && r_new.norm_squared() < cost =>
+                {
                     let new_cost = r_new.norm_squared();
                     let small_gain = cost - new_cost <= opts.cost_tolerance * cost;
-                    let small_step = (0..n).all(|i| step[i].abs() <= opts.step_tolerance * (1.0 + p[i].abs()));
+                    let small_step =
+                        (0..n).all(|i| step[i].abs() <= opts.step_tolerance * (1.0 + p[i].abs()));
                     p = trial;
                     r = r_new;
                     jac = j_new;
@@ -104,7 +112,14 @@ pub fn solve(p0: &[f64], eval: impl Fn(&[f64]) -> Evaluation, opts: LmOptions) -
             break;
         }
     }
-    Some(LmResult { params: p.iter().copied().collect(), cost, jtj, residuals: r, iterations, converged })
+    Some(LmResult {
+        params: p.iter().copied().collect(),
+        cost,
+        jtj,
+        residuals: r,
+        iterations,
+        converged,
+    })
 }
 
 #[cfg(test)]
@@ -120,8 +135,20 @@ mod tests {
             let j = DMatrix::from_row_slice(2, 2, &[-20.0 * x, 10.0, -1.0, 0.0]);
             Some((r, j))
         };
-        let res = solve(&[-1.2, 1.0], eval, LmOptions { max_step: 10.0, ..Default::default() }).unwrap();
+        let res = solve(
+            &[-1.2, 1.0],
+            eval,
+            LmOptions {
+                max_step: 10.0,
+                ..Default::default()
+            },
+        )
+        .unwrap();
         assert!(res.converged);
-        assert!((res.params[0] - 1.0).abs() < 1e-8 && (res.params[1] - 1.0).abs() < 1e-8, "{:?}", res.params);
+        assert!(
+            (res.params[0] - 1.0).abs() < 1e-8 && (res.params[1] - 1.0).abs() < 1e-8,
+            "{:?}",
+            res.params
+        );
     }
 }

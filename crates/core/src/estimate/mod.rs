@@ -117,8 +117,12 @@ impl Estimate {
             .collect();
         values = perm.iter().map(|&i| values[i]).collect();
         lcov = DMatrix::from_fn(lcov.nrows(), lcov.ncols(), |i, j| lcov[(perm[i], perm[j])]);
-        let covariance = DMatrix::from_fn(lcov.nrows(), lcov.ncols(), |i, j| lcov[(i, j)] * values[i] * values[j]);
-        let log_std: Vec<f64> = (0..values.len()).map(|i| lcov[(i, i)].max(0.0).sqrt()).collect();
+        let covariance = DMatrix::from_fn(lcov.nrows(), lcov.ncols(), |i, j| {
+            lcov[(i, j)] * values[i] * values[j]
+        });
+        let log_std: Vec<f64> = (0..values.len())
+            .map(|i| lcov[(i, i)].max(0.0).sqrt())
+            .collect();
         let std = values.iter().zip(&log_std).map(|(v, s)| v * s).collect();
         let ci95 = values
             .iter()
@@ -149,7 +153,13 @@ pub enum EstimateError {
         "under-determined: {lines} excited line(s) give {observations} real observations \
          for {params} parameters; a Prony series of order {order} needs at least {needed} lines"
     )]
-    UnderDetermined { lines: usize, observations: usize, params: usize, order: usize, needed: usize },
+    UnderDetermined {
+        lines: usize,
+        observations: usize,
+        params: usize,
+        order: usize,
+        needed: usize,
+    },
     #[error("not enough samples: {samples} for {params} parameters")]
     TooFewSamples { samples: usize, params: usize },
     #[error("input and output differ in length ({input} vs {output} samples)")]

@@ -20,25 +20,38 @@ pub fn log_grid(lo: f64, hi: f64, n: usize) -> Vec<f64> {
     if n == 1 {
         return vec![(lo * hi).sqrt()];
     }
-    (0..n).map(|i| lo * (hi / lo).powf(i as f64 / (n - 1) as f64)).collect()
+    (0..n)
+        .map(|i| lo * (hi / lo).powf(i as f64 / (n - 1) as f64))
+        .collect()
 }
 
 /// Scores every n-subset of `taus`. `j0_column` multiplies J0, `columns[k]` multiplies the J of
 /// a term with τ = `taus[k]` (sign included), and `target` is the data, all real vectors of the
 /// same length. Returns up to `keep` physical starts, best first.
-pub fn grid_starts(target: &[f64], j0_column: &[f64], columns: &[Vec<f64>], taus: &[f64], order: usize, keep: usize) -> Vec<Start> {
+pub fn grid_starts(
+    target: &[f64],
+    j0_column: &[f64],
+    columns: &[Vec<f64>],
+    taus: &[f64],
+    order: usize,
+    keep: usize,
+) -> Vec<Start> {
     let m = columns.len();
     if order == 0 || order > m {
         return Vec::new();
     }
-    let all: Vec<&[f64]> = std::iter::once(j0_column).chain(columns.iter().map(|c| c.as_slice())).collect();
+    let all: Vec<&[f64]> = std::iter::once(j0_column)
+        .chain(columns.iter().map(|c| c.as_slice()))
+        .collect();
     let gram = DMatrix::from_fn(m + 1, m + 1, |i, j| dot(all[i], all[j]));
     let rhs = DVector::from_fn(m + 1, |i, _| dot(all[i], target));
     let tt = dot(target, target);
     let mut best: Vec<Start> = Vec::new();
     let mut subset: Vec<usize> = (0..order).collect();
     loop {
-        let idx: Vec<usize> = std::iter::once(0).chain(subset.iter().map(|k| k + 1)).collect();
+        let idx: Vec<usize> = std::iter::once(0)
+            .chain(subset.iter().map(|k| k + 1))
+            .collect();
         let g = DMatrix::from_fn(order + 1, order + 1, |i, j| gram[(idx[i], idx[j])]);
         let b = DVector::from_fn(order + 1, |i, _| rhs[idx[i]]);
         if let Some(chol) = g.cholesky() {
@@ -107,9 +120,18 @@ mod tests {
     fn recovers_exact_grid_model() {
         let taus = log_grid(1e-3, 1.0, 4);
         let x0: Vec<f64> = (0..50).map(|i| (i as f64 * 0.37).sin() + 2.0).collect();
-        let cols: Vec<Vec<f64>> =
-            taus.iter().map(|t| x0.iter().enumerate().map(|(i, v)| -v * (-(i as f64) * 1e-2 / t).exp()).collect()).collect();
-        let target: Vec<f64> = (0..50).map(|i| 5.0 * x0[i] + 1.0 * cols[1][i] + 2.0 * cols[3][i]).collect();
+        let cols: Vec<Vec<f64>> = taus
+            .iter()
+            .map(|t| {
+                x0.iter()
+                    .enumerate()
+                    .map(|(i, v)| -v * (-(i as f64) * 1e-2 / t).exp())
+                    .collect()
+            })
+            .collect();
+        let target: Vec<f64> = (0..50)
+            .map(|i| 5.0 * x0[i] + 1.0 * cols[1][i] + 2.0 * cols[3][i])
+            .collect();
         let s = grid_starts(&target, &x0, &cols, &taus, 2, 3);
         assert!(s[0].cost < 1e-18, "{}", s[0].cost);
         assert!((s[0].log_params[0].exp() - 5.0).abs() < 1e-9);

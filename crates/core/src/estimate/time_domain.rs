@@ -27,31 +27,53 @@ pub struct TimeFitOptions {
 
 impl TimeFitOptions {
     pub fn new(order: usize) -> Self {
-        Self { order, grid_size: 16, starts: 6, extra_start: None, lm: LmOptions::default() }
+        Self {
+            order,
+            grid_size: 16,
+            starts: 6,
+            extra_start: None,
+            lm: LmOptions::default(),
+        }
     }
 }
 
 /// Fits a Prony series to `u → y` sampled at `fs_hz`.
-pub fn fit_time_domain(u: &[f64], y: &[f64], fs_hz: f64, opts: &TimeFitOptions) -> Result<Estimate, EstimateError> {
+pub fn fit_time_domain(
+    u: &[f64],
+    y: &[f64],
+    fs_hz: f64,
+    opts: &TimeFitOptions,
+) -> Result<Estimate, EstimateError> {
     let n = opts.order;
     if n == 0 {
         return Err(EstimateError::Order(0));
     }
     if u.len() != y.len() {
-        return Err(EstimateError::LengthMismatch { input: u.len(), output: y.len() });
+        return Err(EstimateError::LengthMismatch {
+            input: u.len(),
+            output: y.len(),
+        });
     }
     check_finite(u)?;
     check_finite(y)?;
     let n_params = 2 * n + 1;
     let len = u.len();
     if len < 4 * n_params {
-        return Err(EstimateError::TooFewSamples { samples: len, params: n_params });
+        return Err(EstimateError::TooFewSamples {
+            samples: len,
+            params: n_params,
+        });
     }
-    let u_range = u.iter().fold(f64::NEG_INFINITY, |a, &b| a.max(b)) - u.iter().fold(f64::INFINITY, |a, &b| a.min(b));
+    let u_range = u.iter().fold(f64::NEG_INFINITY, |a, &b| a.max(b))
+        - u.iter().fold(f64::INFINITY, |a, &b| a.min(b));
     if u_range <= 0.0 {
-        return Err(EstimateError::NoExcitation("the input is constant over the record".into()));
+        return Err(EstimateError::NoExcitation(
+            "the input is constant over the record".into(),
+        ));
     }
-    let scale = (y.iter().map(|v| v * v).sum::<f64>() / len as f64).sqrt().max(1e-300);
+    let scale = (y.iter().map(|v| v * v).sum::<f64>() / len as f64)
+        .sqrt()
+        .max(1e-300);
     let eval = |p: &[f64]| -> Evaluation {
         if p.iter().any(|v| !v.is_finite() || v.abs() > 700.0) {
             return None;
@@ -82,10 +104,19 @@ pub fn fit_time_domain(u: &[f64], y: &[f64], fs_hz: f64, opts: &TimeFitOptions) 
     let taus = log_grid(2.0 / fs_hz, duration / 2.0, opts.grid_size.max(n));
     let target: Vec<f64> = y.iter().map(|v| v / scale).collect();
     let j0_col: Vec<f64> = u.iter().map(|v| v / scale).collect();
-    let columns: Vec<Vec<f64>> =
-        taus.iter().map(|&t| tustin_highpass(u, t, fs_hz).iter().map(|v| -v / scale).collect()).collect();
-    let mut starts: Vec<Vec<f64>> =
-        grid_starts(&target, &j0_col, &columns, &taus, n, opts.starts).into_iter().map(|s| s.log_params).collect();
+    let columns: Vec<Vec<f64>> = taus
+        .iter()
+        .map(|&t| {
+            tustin_highpass(u, t, fs_hz)
+                .iter()
+                .map(|v| -v / scale)
+                .collect()
+        })
+        .collect();
+    let mut starts: Vec<Vec<f64>> = grid_starts(&target, &j0_col, &columns, &taus, n, opts.starts)
+        .into_iter()
+        .map(|s| s.log_params)
+        .collect();
     if let Some(prior) = &opts.extra_start {
         if prior.order() == n && prior.is_physical() {
             starts.push(prior.to_vec().iter().map(|v| v.ln()).collect());
@@ -111,8 +142,12 @@ pub fn fit_time_domain(u: &[f64], y: &[f64], fs_hz: f64, opts: &TimeFitOptions) 
         let (iterations, cost) = last.unwrap_or((0, f64::NAN));
         return Err(EstimateError::NoConvergence { iterations, cost });
     };
-    let d: Vec<f64> = (0..n_params).map(|i| best.jtj[(i, i)].max(1e-300).sqrt()).collect();
-    let rcond = rcond_sym(&DMatrix::from_fn(n_params, n_params, |i, j| best.jtj[(i, j)] / (d[i] * d[j])));
+    let d: Vec<f64> = (0..n_params)
+        .map(|i| best.jtj[(i, i)].max(1e-300).sqrt())
+        .collect();
+    let rcond = rcond_sym(&DMatrix::from_fn(n_params, n_params, |i, j| {
+        best.jtj[(i, j)] / (d[i] * d[j])
+    }));
     if rcond < SINGULAR_RCOND {
         return Err(EstimateError::IllConditioned { rcond });
     }
@@ -136,5 +171,10 @@ pub fn fit_time_domain(u: &[f64], y: &[f64], fs_hz: f64, opts: &TimeFitOptions) 
         noise_free: s2 <= 1e-24,
         warnings,
     };
-    Ok(Estimate::from_log_fit(Method::TimeOutputError, &best.params, cov, diagnostics))
+    Ok(Estimate::from_log_fit(
+        Method::TimeOutputError,
+        &best.params,
+        cov,
+        diagnostics,
+    ))
 }

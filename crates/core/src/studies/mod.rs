@@ -17,19 +17,32 @@ pub fn sum_of_sines(lines: &[(f64, f64)], fs_hz: f64, start: usize, n: usize) ->
     (start..start + n)
         .map(|l| {
             let t = l as f64 / fs_hz;
-            lines.iter().map(|(f, a)| a * (2.0 * std::f64::consts::PI * f * t).sin()).sum()
+            lines
+                .iter()
+                .map(|(f, a)| a * (2.0 * std::f64::consts::PI * f * t).sin())
+                .sum()
         })
         .collect()
 }
 
 /// Periodic steady-state response of the Tustin model to a periodic input: one period of
 /// warm-up is simulated and dropped, so every recorded period is the same.
-pub fn steady_state_response(model: &PronySeries, u_one_period: &[f64], periods: usize, fs_hz: f64) -> Vec<f64> {
+pub fn steady_state_response(
+    model: &PronySeries,
+    u_one_period: &[f64],
+    periods: usize,
+    fs_hz: f64,
+) -> Vec<f64> {
     let np = u_one_period.len();
     // Warm up long enough for the slowest term to die out (e^-40) and at least one period.
     let slowest = model.terms.iter().map(|t| t.tau_s).fold(0.0, f64::max);
     let warm_periods = ((40.0 * slowest * fs_hz) / np as f64).ceil().max(1.0) as usize;
-    let u: Vec<f64> = u_one_period.iter().copied().cycle().take(np * (warm_periods + periods)).collect();
+    let u: Vec<f64> = u_one_period
+        .iter()
+        .copied()
+        .cycle()
+        .take(np * (warm_periods + periods))
+        .collect();
     let y = simulate_tustin(model, &u, fs_hz);
     y[np * warm_periods..].to_vec()
 }

@@ -51,7 +51,10 @@ pub fn amplitudes_at_case1_power(design: &[(f64, f64)]) -> Vec<(f64, f64)> {
     let a = u_per_newton() * FORCE_AMPLITUDE_N * 0.25;
     let total_power = 4.0 * a * a / 2.0;
     let sum: f64 = design.iter().map(|d| d.1).sum();
-    design.iter().map(|&(f, p)| (f, (2.0 * total_power * p / sum).sqrt())).collect()
+    design
+        .iter()
+        .map(|&(f, p)| (f, (2.0 * total_power * p / sum).sqrt()))
+        .collect()
 }
 
 /// `u = 9P/(16√R)` per newton of force.
@@ -71,11 +74,21 @@ pub struct Experiment {
 }
 
 /// Simulates `truth` under the sine `lines` (Hz, amplitude) with the given SNR.
-pub fn simulate(truth: &PronySeries, lines: &[(f64, f64)], snr: Option<f64>, seed: u64) -> Experiment {
+pub fn simulate(
+    truth: &PronySeries,
+    lines: &[(f64, f64)],
+    snr: Option<f64>,
+    seed: u64,
+) -> Experiment {
     let np = (FS_HZ * DURATION_S) as usize / PERIODS;
     let u_period = sum_of_sines(lines, FS_HZ, 0, np);
     let y_clean = steady_state_response(truth, &u_period, PERIODS, FS_HZ);
-    let u: Vec<f64> = u_period.iter().copied().cycle().take(np * PERIODS).collect();
+    let u: Vec<f64> = u_period
+        .iter()
+        .copied()
+        .cycle()
+        .take(np * PERIODS)
+        .collect();
     let (y, noise_std) = match snr {
         None => (y_clean, 0.0),
         Some(snr) => {
@@ -84,7 +97,12 @@ pub fn simulate(truth: &PronySeries, lines: &[(f64, f64)], snr: Option<f64>, see
             (y_clean.iter().zip(noise).map(|(a, b)| a + b).collect(), std)
         }
     };
-    Experiment { u, y, noise_std, lines: lines.to_vec() }
+    Experiment {
+        u,
+        y,
+        noise_std,
+        lines: lines.to_vec(),
+    }
 }
 
 /// Relative CRLB (fractions) of `truth` under an experiment's lines and noise.
@@ -92,7 +110,14 @@ pub fn crlb(truth: &PronySeries, exp: &Experiment) -> Option<Vec<f64>> {
     if exp.noise_std == 0.0 {
         return None;
     }
-    let lines: Vec<Line> = exp.lines.iter().map(|&(f, a)| Line { freq_hz: f, amplitude: a }).collect();
+    let lines: Vec<Line> = exp
+        .lines
+        .iter()
+        .map(|&(f, a)| Line {
+            freq_hz: f,
+            amplitude: a,
+        })
+        .collect();
     let fim = fisher_multisine(
         truth,
         &Sampling::Tustin { fs_hz: FS_HZ },
@@ -105,7 +130,12 @@ pub fn crlb(truth: &PronySeries, exp: &Experiment) -> Option<Vec<f64>> {
 
 /// The ML estimator as configured for these studies.
 pub fn fit_ml(exp: &Experiment, order: usize) -> Result<Estimate, EstimateError> {
-    fit_periodic(&exp.u, &exp.y, FS_HZ, &FrequencyFitOptions::new(order, FS_HZ, PERIODS))
+    fit_periodic(
+        &exp.u,
+        &exp.y,
+        FS_HZ,
+        &FrequencyFitOptions::new(order, FS_HZ, PERIODS),
+    )
 }
 
 /// The paper's ARX estimator (na = n, nb = n + 1).
@@ -115,7 +145,12 @@ pub fn fit_paper_arx(exp: &Experiment, order: usize) -> Result<Estimate, Estimat
 
 /// Signed percent errors of `est` (canonical order) against `truth`.
 pub fn error_pct(truth: &PronySeries, est: &[f64]) -> Vec<f64> {
-    truth.to_vec().iter().zip(est).map(|(t, e)| 100.0 * (e - t) / t).collect()
+    truth
+        .to_vec()
+        .iter()
+        .zip(est)
+        .map(|(t, e)| 100.0 * (e - t) / t)
+        .collect()
 }
 
 /// One case of Table I: its experiment and both estimators' results.
@@ -145,20 +180,25 @@ pub struct ArxOutcome {
 /// Runs the paper's ARX procedure on an experiment.
 pub fn arx_outcome(exp: &Experiment, order: usize) -> ArxOutcome {
     let estimate = fit_paper_arx(exp, order);
-    let (paper_values, complex_poles) = match crate::estimate::arx::arx_least_squares(&exp.u, &exp.y, FS_HZ, order) {
-        Ok(fit) => match crate::discrete::d2c_complex(&fit.tf) {
-            Ok((j0, terms)) => {
-                let complex = terms.iter().any(|t| t.tau.im.abs() > 1e-12 * t.tau.norm());
-                let mut v = vec![j0];
-                v.extend(terms.iter().map(|t| t.j.re));
-                v.extend(terms.iter().map(|t| t.tau.re));
-                (Some(v), complex)
-            }
+    let (paper_values, complex_poles) =
+        match crate::estimate::arx::arx_least_squares(&exp.u, &exp.y, FS_HZ, order) {
+            Ok(fit) => match crate::discrete::d2c_complex(&fit.tf) {
+                Ok((j0, terms)) => {
+                    let complex = terms.iter().any(|t| t.tau.im.abs() > 1e-12 * t.tau.norm());
+                    let mut v = vec![j0];
+                    v.extend(terms.iter().map(|t| t.j.re));
+                    v.extend(terms.iter().map(|t| t.tau.re));
+                    (Some(v), complex)
+                }
+                Err(_) => (None, false),
+            },
             Err(_) => (None, false),
-        },
-        Err(_) => (None, false),
-    };
-    ArxOutcome { estimate, paper_values, complex_poles }
+        };
+    ArxOutcome {
+        estimate,
+        paper_values,
+        complex_poles,
+    }
 }
 
 /// Runs one case.
@@ -235,22 +275,41 @@ pub fn efficiency(runs: usize, seed0: u64, mut progress: impl FnMut(usize)) -> E
             let k = e.len().max(1) as f64;
             let mean = e.iter().sum::<f64>() / k;
             let var = e.iter().map(|x| (x - mean) * (x - mean)).sum::<f64>() / (k - 1.0).max(1.0);
-            EfficiencyRow { name, crlb_rel: crlb_rel[i], std_rel: var.sqrt(), mean_rel: mean }
+            EfficiencyRow {
+                name,
+                crlb_rel: crlb_rel[i],
+                std_rel: var.sqrt(),
+                mean_rel: mean,
+            }
         })
         .collect();
-    Efficiency { runs, failures, rows }
+    Efficiency {
+        runs,
+        failures,
+        rows,
+    }
 }
 
 /// The design of Case 3 and a description of where it came from.
 pub fn case3_design() -> (Vec<(f64, f64)>, String) {
-    (paper_table2_design(), "the paper's Table II design (search band [1, 100] Hz)".to_string())
+    (
+        paper_table2_design(),
+        "the paper's Table II design (search band [1, 100] Hz)".to_string(),
+    )
 }
 
 /// All three cases of Table I with one noise seed.
 pub fn all_cases(truth: &PronySeries, seed: u64) -> Vec<CaseResult> {
     let (d3, why3) = case3_design();
     vec![
-        run_case("case1", "Case 1 input (1, 10, 100, 1000 Hz, equal amplitudes), no noise".into(), truth, &case1_design(), None, seed),
+        run_case(
+            "case1",
+            "Case 1 input (1, 10, 100, 1000 Hz, equal amplitudes), no noise".into(),
+            truth,
+            &case1_design(),
+            None,
+            seed,
+        ),
         run_case(
             "case2",
             format!("Case 1 input, band-limited white output noise, SNR {SNR_CASE2}"),
@@ -259,6 +318,13 @@ pub fn all_cases(truth: &PronySeries, seed: u64) -> Vec<CaseResult> {
             Some(SNR_CASE2),
             seed,
         ),
-        run_case("case3", format!("{why3}, output noise SNR {SNR_CASE3}"), truth, &d3, Some(SNR_CASE3), seed),
+        run_case(
+            "case3",
+            format!("{why3}, output noise SNR {SNR_CASE3}"),
+            truth,
+            &d3,
+            Some(SNR_CASE3),
+            seed,
+        ),
     ]
 }

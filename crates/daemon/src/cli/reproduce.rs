@@ -81,12 +81,23 @@ fn names() -> Vec<String> {
 
 fn params_json(v: &[f64]) -> Value {
     let names = PronySeries::param_names((v.len() - 1) / 2);
-    Value::Object(names.into_iter().zip(v).map(|(n, x)| (n, json!(x))).collect::<Map<_, _>>())
+    Value::Object(
+        names
+            .into_iter()
+            .zip(v)
+            .map(|(n, x)| (n, json!(x)))
+            .collect::<Map<_, _>>(),
+    )
 }
 
 fn estimate_json(truth: &PronySeries, est: &Estimate) -> Value {
     let v = est.values();
-    let ci: Map<String, Value> = est.names().into_iter().zip(&est.ci95).map(|(n, c)| (n, json!([c[0], c[1]]))).collect();
+    let ci: Map<String, Value> = est
+        .names()
+        .into_iter()
+        .zip(&est.ci95)
+        .map(|(n, c)| (n, json!([c[0], c[1]])))
+        .collect();
     json!({
         "params": params_json(&v),
         "error_pct": params_json(&table1::error_pct(truth, &v)),
@@ -143,21 +154,27 @@ fn print_case(truth: &PronySeries, c: &CaseResult) {
     };
     let ml_vals = c.ml.as_ref().ok().map(|e| e.values());
     println!(
-        "  {:<5} {:>10} {:>11} {:>9} {:>11} {:>8} {:>8}   {}",
-        "param", "truth", "ARX", "err %", "ML", "err %", "CRLB %", "ML 95 % interval"
+        "  {:<5} {:>10} {:>11} {:>9} {:>11} {:>8} {:>8}   ML 95 % interval",
+        "param", "truth", "ARX", "err %", "ML", "err %", "CRLB %"
     );
     for (i, name) in names().iter().enumerate() {
         let (t, unit) = human_param(name, tv[i]);
         let cell = |vals: &Option<Vec<f64>>| match vals {
             Some(v) => {
                 let (x, _) = human_param(name, v[i]);
-                (format!("{x:>11.4}"), format!("{:>9.2}", 100.0 * (v[i] - tv[i]) / tv[i]))
+                (
+                    format!("{x:>11.4}"),
+                    format!("{:>9.2}", 100.0 * (v[i] - tv[i]) / tv[i]),
+                )
             }
             None => (format!("{:>11}", "—"), format!("{:>9}", "—")),
         };
         let (a, ae) = cell(&arx_vals);
         let (m, me) = cell(&ml_vals);
-        let crlb = c.crlb_rel.as_ref().map_or("—".to_string(), |v| format!("{:.3}", 100.0 * v[i]));
+        let crlb = c
+            .crlb_rel
+            .as_ref()
+            .map_or("—".to_string(), |v| format!("{:.3}", 100.0 * v[i]));
         let ci = c.ml.as_ref().map_or(String::new(), |e| {
             let (lo, _) = human_param(name, e.ci95[i][0]);
             let (hi, _) = human_param(name, e.ci95[i][1]);
@@ -178,7 +195,11 @@ fn print_case(truth: &PronySeries, c: &CaseResult) {
             "  ML: cost/dof {:.2}, {} lines{}",
             e.diagnostics.cost_per_dof,
             e.diagnostics.observations,
-            if e.diagnostics.warnings.is_empty() { String::new() } else { format!(", {}", e.diagnostics.warnings.join("; ")) }
+            if e.diagnostics.warnings.is_empty() {
+                String::new()
+            } else {
+                format!(", {}", e.diagnostics.warnings.join("; "))
+            }
         ),
         Err(e) => println!("  ML: {e}"),
     }
@@ -186,7 +207,11 @@ fn print_case(truth: &PronySeries, c: &CaseResult) {
 }
 
 fn run_efficiency(args: &EfficiencyArgs) -> anyhow::Result<()> {
-    anyhow::ensure!(args.runs >= 2, "--runs must be at least 2 to measure a standard deviation (got {})", args.runs);
+    anyhow::ensure!(
+        args.runs >= 2,
+        "--runs must be at least 2 to measure a standard deviation (got {})",
+        args.runs
+    );
     let tty = std::io::stderr().is_terminal();
     let step = (args.runs / 10).max(1);
     let eff = table1::efficiency(args.runs, args.seed, |done| {
@@ -208,7 +233,9 @@ fn run_efficiency(args: &EfficiencyArgs) -> anyhow::Result<()> {
                        "ratio": r.std_rel / r.crlb_rel, "bias_rel_pct": 100.0 * r.mean_rel})
             })
             .collect();
-        return print_json(&json!({"runs": eff.runs, "failures": eff.failures, "snr": table1::SNR_CASE2, "rows": rows}));
+        return print_json(
+            &json!({"runs": eff.runs, "failures": eff.failures, "snr": table1::SNR_CASE2, "rows": rows}),
+        );
     }
     println!(
         "Efficiency of the ML estimator — Table I Case 2 conditions (Case 1 input, SNR {}), {} seeds from {}",
@@ -216,7 +243,10 @@ fn run_efficiency(args: &EfficiencyArgs) -> anyhow::Result<()> {
         eff.runs,
         args.seed
     );
-    println!("  {:<5} {:>12} {:>12} {:>10} {:>12}", "param", "CRLB %", "std %", "std/CRLB", "bias %");
+    println!(
+        "  {:<5} {:>12} {:>12} {:>10} {:>12}",
+        "param", "CRLB %", "std %", "std/CRLB", "bias %"
+    );
     for r in &eff.rows {
         println!(
             "  {:<5} {:>12.4} {:>12.4} {:>10.3} {:>12.4}",
@@ -228,6 +258,9 @@ fn run_efficiency(args: &EfficiencyArgs) -> anyhow::Result<()> {
         );
     }
     println!("  failed fits: {} of {}", eff.failures, eff.runs);
-    println!("  (std/CRLB ≈ 1 means efficient; the std of a std over N seeds is ≈ 1/√(2N) = {:.1} %)", 100.0 / (2.0 * eff.runs as f64).sqrt());
+    println!(
+        "  (std/CRLB ≈ 1 means efficient; the std of a std over N seeds is ≈ 1/√(2N) = {:.1} %)",
+        100.0 / (2.0 * eff.runs as f64).sqrt()
+    );
     Ok(())
 }

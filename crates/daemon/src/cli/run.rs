@@ -14,7 +14,9 @@ pub struct RunArgs {
 }
 
 pub fn run(args: RunArgs) -> anyhow::Result<()> {
-    let config = args.config.unwrap_or_else(|| PathBuf::from("config/sim-pdms.toml"));
+    let config = args
+        .config
+        .unwrap_or_else(|| PathBuf::from("config/sim-pdms.toml"));
     anyhow::bail!(
         "the closed-loop measurement ({}) is not available in this build yet: it arrives with \
          the simulated SPM (issue #4) and MIIC tracking (issue #6).\n\
