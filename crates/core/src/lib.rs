@@ -1,5 +1,6 @@
 //! The science core of viscoprobe: pure computation, no I/O.
 pub mod contact;
+pub mod design;
 pub mod discrete;
 pub mod prony;
 pub mod fisher;
