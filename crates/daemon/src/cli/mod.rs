@@ -3,6 +3,7 @@
 
 use clap::{Parser, Subcommand};
 
+pub mod design;
 pub mod reproduce;
 pub mod run;
 
@@ -21,6 +22,9 @@ pub enum Command {
     Reproduce(reproduce::ReproduceCommand),
     /// Run a closed-loop measurement from a configuration file (default config/sim-pdms.toml).
     Run(run::RunArgs),
+    /// Design a D-optimal multisine for a prior model (band, exclusions, level, preload) and
+    /// print its lines, certificate, predicted CRLB and crest factor; optionally write it as CSV.
+    Design(design::Args),
 }
 
 /// Runs the parsed command line.
@@ -28,5 +32,6 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Reproduce(cmd) => reproduce::run(cmd),
         Command::Run(args) => run::run(args),
+        Command::Design(args) => design::run(args),
     }
 }
