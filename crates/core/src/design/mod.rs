@@ -12,7 +12,7 @@
 //!   and returns a [`Design`]: a few [`DesignLine`]s with power fractions and the
 //!   Kiefer–Wolfowitz certificate `d_max_over_p = max_f d(f)/p` (exactly 1 at the optimum; the
 //!   returned design always satisfies `≤ 1 + ε`). The algorithm is described in
-//!   [`optimal`](self::optimal).
+//!   [`optimal`].
 //! * [`synthesize`] turns a design into a [`Multisine`]: amplitudes `A_i = sqrt(2 P p_i)`,
 //!   Schroeder phases improved by iterative clipping, an offset for the preload, and the
 //!   sampled signal over whole periods, with its crest factor.
