@@ -24,25 +24,52 @@ use thiserror::Error;
 pub enum Sampling {
     /// The data came from the Tustin-discretised system at `fs_hz` (the paper's simulations).
     Tustin { fs_hz: f64 },
+    /// The data came from the continuous material driven by a force that is linear between
+    /// samples (first-order hold) — exactly what the digital twin simulates, and the closest
+    /// discrete description of a smooth force sampled at `fs_hz`.
+    FirstOrderHold { fs_hz: f64 },
     /// The continuous `G(jω)` (band-limited data from a continuous system, far below Nyquist).
     Continuous,
 }
 
 impl Sampling {
-    /// The Laplace variable at which `G` is evaluated for a line at `freq_hz`.
-    pub fn s_at(&self, freq_hz: f64) -> Complex64 {
+    /// Response of one retardation term's high-pass `HP_τ` (so that `G = J0 − Σ Ji·HP_τi`) at
+    /// `freq_hz`, and its derivative with respect to `ln τ`.
+    pub fn term(&self, tau_s: f64, freq_hz: f64) -> (Complex64, Complex64) {
         let w = 2.0 * std::f64::consts::PI * freq_hz;
+        let continuous = |s: Complex64| {
+            let d = s + 1.0 / tau_s;
+            (s / d, s / (tau_s * d * d))
+        };
         match *self {
-            Sampling::Continuous => Complex64::new(0.0, w),
+            Sampling::Continuous => continuous(Complex64::new(0.0, w)),
             Sampling::Tustin { fs_hz } => {
-                Complex64::new(0.0, 2.0 * fs_hz * (w / (2.0 * fs_hz)).tan())
+                continuous(Complex64::new(0.0, 2.0 * fs_hz * (w / (2.0 * fs_hz)).tan()))
+            }
+            Sampling::FirstOrderHold { fs_hz } => {
+                // x[k] = a·x[k−1] + c·(u[k] − u[k−1]), a = e^{−T/τ}, c = τ(1 − a)/T.
+                let t = 1.0 / fs_hz;
+                let a = (-t / tau_s).exp();
+                let c = tau_s * (1.0 - a) / t;
+                let q = Complex64::from_polar(1.0, -w * t);
+                let den = 1.0 - a * q;
+                let h = c * (1.0 - q) / den;
+                // d/dτ: da/dτ = a·T/τ², dc/dτ = (1 − a)/T − a/τ.
+                let da = a * t / (tau_s * tau_s);
+                let dc = (1.0 - a) / t - a / tau_s;
+                let dh = (1.0 - q) * (dc * den + c * q * da) / (den * den);
+                (h, dh * tau_s)
             }
         }
     }
 
     /// The model's response at `freq_hz`.
     pub fn response(&self, model: &PronySeries, freq_hz: f64) -> Complex64 {
-        model.transfer(self.s_at(freq_hz))
+        let mut g = Complex64::new(model.j0_per_pa, 0.0);
+        for t in &model.terms {
+            g -= t.j_per_pa * self.term(t.tau_s, freq_hz).0;
+        }
+        g
     }
 }
 

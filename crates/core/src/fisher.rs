@@ -58,17 +58,14 @@ impl NoiseSpectrum {
 
 /// `∂G(s)/∂ln θ` at one line, canonical order `[J0, J1..Jn, τ1..τn]`.
 pub fn log_sensitivity(model: &PronySeries, sampling: &Sampling, freq_hz: f64) -> Vec<Complex64> {
-    let s = sampling.s_at(freq_hz);
     let n = model.order();
     let mut g = vec![Complex64::new(0.0, 0.0); 2 * n + 1];
     g[0] = Complex64::new(model.j0_per_pa, 0.0);
     for (i, t) in model.terms.iter().enumerate() {
-        let a = 1.0 / t.tau_s;
-        let d = s + a;
-        // ∂/∂ln Ji of −Ji·s/(s + a)
-        g[1 + i] = -t.j_per_pa * s / d;
-        // ∂/∂ln τi of −Ji·s/(s + 1/τ) = −Ji·s/(τ·(s + 1/τ)²)
-        g[1 + n + i] = -t.j_per_pa * s / (t.tau_s * d * d);
+        let (h, dh) = sampling.term(t.tau_s, freq_hz);
+        // ∂/∂ln Ji and ∂/∂ln τi of −Ji·HP_τi
+        g[1 + i] = -t.j_per_pa * h;
+        g[1 + n + i] = -t.j_per_pa * dh;
     }
     g
 }

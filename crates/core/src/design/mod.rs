@@ -119,9 +119,8 @@ impl Default for MergeRule {
 pub struct DesignConfig {
     /// Sample rate, Hz.
     pub fs_hz: f64,
-    /// True: the model is the Tustin discretisation at `fs_hz` (the paper); false: the
-    /// continuous `G(jω)`.
-    pub tustin: bool,
+    /// How the model's response relates to the sampled data (the paper: Tustin at `fs_hz`).
+    pub sampling: Sampling,
     /// Record length, s.
     pub duration_s: f64,
     /// Whole periods in the record (≥ 1; 2 lets the estimator measure the noise from
@@ -157,7 +156,7 @@ impl DesignConfig {
     pub fn new(band_hz: (f64, f64)) -> Self {
         Self {
             fs_hz: 8000.0,
-            tustin: true,
+            sampling: Sampling::Tustin { fs_hz: 8000.0 },
             duration_s: 2.0,
             periods: 2,
             band_hz,
@@ -181,11 +180,7 @@ impl DesignConfig {
 
     /// The sampling model the Fisher information is computed with.
     pub fn sampling(&self) -> Sampling {
-        if self.tustin {
-            Sampling::Tustin { fs_hz: self.fs_hz }
-        } else {
-            Sampling::Continuous
-        }
+        self.sampling
     }
 
     /// One period, s.

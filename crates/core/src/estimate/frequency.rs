@@ -260,6 +260,27 @@ fn neighbours_power(y: &[Complex64], excited: &[bool], k: usize, w: usize) -> f6
     }
 }
 
+/// Pools the excited lines of several records of the same material (e.g. the successive
+/// iterations of a design loop) into one set, so that one fit uses all the information
+/// gathered so far. Each line keeps its own record's noise. `None` for an empty slice or
+/// records at different sample rates.
+pub fn pool_spectra(records: &[PeriodicSpectra]) -> Option<PeriodicSpectra> {
+    let first = records.first()?;
+    if records.iter().any(|r| r.fs_hz != first.fs_hz) {
+        return None;
+    }
+    Some(PeriodicSpectra {
+        fs_hz: first.fs_hz,
+        period_samples: first.period_samples,
+        periods: records.iter().map(|r| r.periods).min().unwrap_or(1),
+        lines: records
+            .iter()
+            .flat_map(|r| r.lines.iter().copied())
+            .collect(),
+        noise_free: records.iter().all(|r| r.noise_free),
+    })
+}
+
 /// Fits a Prony series of `opts.order` terms to periodic data.
 pub fn fit_periodic(
     u: &[f64],
@@ -279,18 +300,17 @@ pub fn fit_periodic(
 }
 
 /// `G` and `∂G/∂ln θ` for log-parameters in the solver's (unsorted) order.
-fn response(p: &[f64], n: usize, s: Complex64) -> (Complex64, Vec<Complex64>) {
+fn response(p: &[f64], n: usize, sampling: &Sampling, freq_hz: f64) -> (Complex64, Vec<Complex64>) {
     let j0 = p[0].exp();
     let mut g = Complex64::new(j0, 0.0);
     let mut d = vec![Complex64::new(0.0, 0.0); p.len()];
     d[0] = Complex64::new(j0, 0.0);
     for i in 0..n {
         let (ji, tau) = (p[1 + i].exp(), p[1 + n + i].exp());
-        let den = s + 1.0 / tau;
-        let h = s / den;
+        let (h, dh) = sampling.term(tau, freq_hz);
         g -= ji * h;
         d[1 + i] = -ji * h;
-        d[1 + n + i] = -ji * s / (tau * den * den);
+        d[1 + n + i] = -ji * dh;
     }
     (g, d)
 }
@@ -316,10 +336,6 @@ pub fn fit_spectra(
             needed,
         });
     }
-    let s_k: Vec<Complex64> = lines
-        .iter()
-        .map(|l| opts.sampling.s_at(l.freq_hz))
-        .collect();
     // Without measurable noise, weight each line by its own size so every line counts.
     let floor: Vec<f64> = lines
         .iter()
@@ -347,7 +363,7 @@ pub fn fit_spectra(
         let mut r = DVector::zeros(2 * m);
         let mut jac = DMatrix::zeros(2 * m, p.len());
         for (i, l) in lines.iter().enumerate() {
-            let (g, dg) = response(p, n, s_k[i]);
+            let (g, dg) = response(p, n, &opts.sampling, l.freq_hz);
             let d = variance(i, g);
             let num = l.y - g * l.u;
             let sd = d.sqrt();
@@ -394,7 +410,7 @@ pub fn fit_spectra(
     let j0_col = stack(&|i| lines[i].u);
     let columns: Vec<Vec<f64>> = taus
         .iter()
-        .map(|&t| stack(&|i| -lines[i].u * s_k[i] / (s_k[i] + 1.0 / t)))
+        .map(|&t| stack(&|i| -lines[i].u * opts.sampling.term(t, lines[i].freq_hz).0))
         .collect();
     let mut starts: Vec<Vec<f64>> = grid_starts(&target, &j0_col, &columns, &taus, n, opts.starts)
         .into_iter()
@@ -492,7 +508,7 @@ pub fn crlb_for_spectra(
     let mut fim = DMatrix::<f64>::zeros(p, p);
     let lp: Vec<f64> = model.to_vec().iter().map(|v| v.ln()).collect();
     for l in &spectra.lines {
-        let (g, dg) = response(&lp, model.order(), sampling.s_at(l.freq_hz));
+        let (g, dg) = response(&lp, model.order(), sampling, l.freq_hz);
         let d = l.var_y + g.norm_sqr() * l.var_u - 2.0 * (g.conj() * l.cov_yu).re;
         for i in 0..p {
             for j in 0..p {

@@ -3,6 +3,7 @@
 //! simulation model), adds seeded noise, runs the estimators and returns numbers; printing
 //! is the caller's business.
 
+pub mod design_loop;
 pub mod table1;
 
 use crate::discrete::simulate_tustin;

@@ -10,6 +10,7 @@ use viscoprobe_core::design::{
     d_optimal, synthesize, table2_comparison, DesignConfig, Exclusion, Exclusions, Level,
     MainsExclusion, Multisine, SynthConfig,
 };
+use viscoprobe_core::discrete::Sampling;
 use viscoprobe_core::fisher::{fisher_multisine, relative_crlb, NoiseSpectrum};
 use viscoprobe_core::prony::PronySeries;
 
@@ -178,7 +179,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     cfg.fs_hz = args.fs;
     cfg.duration_s = args.duration;
     cfg.periods = args.periods;
-    cfg.tustin = !args.continuous;
+    cfg.sampling = if args.continuous {
+        Sampling::Continuous
+    } else {
+        Sampling::Tustin { fs_hz: cfg.fs_hz }
+    };
     cfg.exclusions = Exclusions {
         mains: args.exclude_mains.map(|f| MainsExclusion {
             fundamental_hz: f,
@@ -260,7 +265,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "fs_hz": cfg.fs_hz,
             "duration_s": cfg.duration_s,
             "periods": cfg.periods,
-            "model": if cfg.tustin { "tustin" } else { "continuous" },
+            "model": sampling_name(&cfg.sampling),
             "rms": signal.rms,
             "peak": signal.peak,
             "offset": signal.offset,
@@ -287,7 +292,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         cfg.period_s(),
         cfg.duration_s,
         cfg.fs_hz,
-        if cfg.tustin { "Tustin" } else { "continuous" },
+        sampling_name(&cfg.sampling),
         design.n_candidates
     );
     if let Some(m) = cfg.exclusions.mains {
@@ -470,4 +475,12 @@ pub fn table2(json: bool) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+fn sampling_name(s: &Sampling) -> &'static str {
+    match s {
+        Sampling::Tustin { .. } => "tustin",
+        Sampling::FirstOrderHold { .. } => "first_order_hold",
+        Sampling::Continuous => "continuous",
+    }
 }

@@ -12,6 +12,8 @@ use viscoprobe_core::studies::table1::{self, CaseResult};
 pub enum ReproduceCommand {
     /// Table I: ARX (the paper's estimator) and ML against the truth, with the CRLB.
     Table1(Table1Args),
+    /// Table II: the paper's [1, 100] Hz design search versus the wide-band D-optimal design.
+    Table2(Table2Args),
     /// Efficiency: empirical scatter of the ML estimates over many noise seeds vs the CRLB.
     Efficiency(EfficiencyArgs),
 }
@@ -24,6 +26,13 @@ pub struct Table1Args {
     /// Seed of the output noise.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+}
+
+#[derive(Debug, Args)]
+pub struct Table2Args {
+    /// Print one JSON object instead of tables.
+    #[arg(long)]
+    pub json: bool,
 }
 
 #[derive(Debug, Args)]
@@ -42,6 +51,7 @@ pub struct EfficiencyArgs {
 pub fn run(cmd: ReproduceCommand) -> anyhow::Result<()> {
     match cmd {
         ReproduceCommand::Table1(a) => run_table1(&a),
+        ReproduceCommand::Table2(a) => super::design::table2(a.json),
         ReproduceCommand::Efficiency(a) => run_efficiency(&a),
     }
 }
