@@ -7,3 +7,4 @@ pub mod fisher;
 pub mod linalg;
 pub mod estimate;
 pub mod studies;
+pub mod twin;

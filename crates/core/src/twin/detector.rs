@@ -1,0 +1,224 @@
+//! The deflection detector chain: optical lever → volts, with the imperfections of a real one.
+//!
+//! `v = d/S` (S the deflection sensitivity, nm/V), then a cubic nonlinearity, white and 1/f
+//! noise, drift, mains pick-up, a delay relative to the drive channel, quantisation and the
+//! ADC range. Every part is off unless configured.
+
+use rand::rngs::StdRng;
+use rand::SeedableRng;
+use rand_distr::{Distribution, StandardNormal};
+use serde::{Deserialize, Serialize};
+
+/// `[detector]` table.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct DetectorConfig {
+    /// White noise, V rms per sample.
+    #[serde(default)]
+    pub white_noise_v: f64,
+    /// 1/f (pink) noise, V rms over the simulated band (from fs/2 down ~10 octaves).
+    #[serde(default)]
+    pub pink_noise_v: f64,
+    /// Linear drift of the deflection signal, V/s.
+    #[serde(default)]
+    pub drift_v_per_s: f64,
+    /// Mains pick-up.
+    #[serde(default)]
+    pub mains: Option<Mains>,
+    /// Cubic nonlinearity: `v + k3·v³`, 1/V².
+    #[serde(default)]
+    pub cubic_per_v2: f64,
+    /// Delay of the deflection channel after the drive channel, s (fractional samples allowed).
+    #[serde(default)]
+    pub delay_s: f64,
+    /// ADC step, V (0: no quantisation).
+    #[serde(default)]
+    pub lsb_v: f64,
+    /// ADC range, V (symmetric ±range; 0: unlimited).
+    #[serde(default)]
+    pub range_v: f64,
+}
+
+/// Mains interference.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Mains {
+    pub freq_hz: f64,
+    pub amplitude_v: f64,
+}
+
+const PINK_OCTAVES: usize = 10;
+
+/// Detector state.
+#[derive(Debug, Clone)]
+pub struct Detector {
+    cfg: DetectorConfig,
+    fs_hz: f64,
+    rng: StdRng,
+    /// AR(1) poles and states, one per octave: their sum has a 1/f spectrum in between.
+    pink: Vec<(f64, f64, f64)>,
+    /// Past clean values for the delay line.
+    history: std::collections::VecDeque<f64>,
+    sample: u64,
+}
+
+impl Detector {
+    pub fn new(cfg: &DetectorConfig, fs_hz: f64, seed: u64) -> Self {
+        // Octave-spaced AR(1) processes with equal variance sum to ≈1/f between the corners.
+        let pink = (0..PINK_OCTAVES)
+            .map(|i| {
+                let fc = fs_hz / 4.0 / 2f64.powi(i as i32);
+                let a = (-2.0 * std::f64::consts::PI * fc / fs_hz).exp();
+                let gain = (1.0 - a * a).sqrt() / (PINK_OCTAVES as f64).sqrt();
+                (a, gain, 0.0)
+            })
+            .collect();
+        let depth = (cfg.delay_s * fs_hz).ceil() as usize + 2;
+        Self {
+            cfg: cfg.clone(),
+            fs_hz,
+            rng: StdRng::seed_from_u64(seed),
+            pink,
+            history: std::iter::repeat_n(0.0, depth).collect(),
+            sample: 0,
+        }
+    }
+
+    /// Pre-fills the delay line with a constant clean value (an instrument at rest).
+    pub fn settle(&mut self, v: f64) {
+        for h in self.history.iter_mut() {
+            *h = v;
+        }
+    }
+
+    fn gauss(&mut self) -> f64 {
+        StandardNormal.sample(&mut self.rng)
+    }
+
+    /// Converts one clean deflection (V, before imperfections) into the ADC reading.
+    pub fn step(&mut self, clean_v: f64) -> f64 {
+        let t = self.sample as f64 / self.fs_hz;
+        self.sample += 1;
+        // Delay line: newest at the back.
+        self.history.pop_front();
+        self.history.push_back(clean_v);
+        let d = self.cfg.delay_s * self.fs_hz;
+        let v = if d <= 0.0 {
+            clean_v
+        } else {
+            let len = self.history.len();
+            let i = d.floor() as usize;
+            let frac = d - i as f64;
+            let newer = self.history[len - 1 - i];
+            let older = self.history[len - 2 - i];
+            newer * (1.0 - frac) + older * frac
+        };
+        let mut out = v + self.cfg.cubic_per_v2 * v * v * v;
+        if self.cfg.white_noise_v > 0.0 {
+            out += self.cfg.white_noise_v * self.gauss();
+        }
+        if self.cfg.pink_noise_v > 0.0 {
+            let mut sum = 0.0;
+            for k in 0..self.pink.len() {
+                let z = self.gauss();
+                let (a, g, s) = self.pink[k];
+                let s = a * s + g * z;
+                self.pink[k].2 = s;
+                sum += s;
+            }
+            out += self.cfg.pink_noise_v * sum;
+        }
+        out += self.cfg.drift_v_per_s * t;
+        if let Some(m) = self.cfg.mains {
+            out += m.amplitude_v * (2.0 * std::f64::consts::PI * m.freq_hz * t).sin();
+        }
+        if self.cfg.lsb_v > 0.0 {
+            out = (out / self.cfg.lsb_v).round() * self.cfg.lsb_v;
+        }
+        if self.cfg.range_v > 0.0 {
+            out = out.clamp(-self.cfg.range_v, self.cfg.range_v);
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn slope(y: &[f64], fs: f64) -> f64 {
+        let n = y.len() as f64;
+        let tm = (n - 1.0) / 2.0 / fs;
+        let ym = y.iter().sum::<f64>() / n;
+        let (mut sxy, mut sxx) = (0.0, 0.0);
+        for (k, v) in y.iter().enumerate() {
+            let t = k as f64 / fs - tm;
+            sxy += t * (v - ym);
+            sxx += t * t;
+        }
+        sxy / sxx
+    }
+
+    /// Drift appears as the configured slope, under white noise.
+    #[test]
+    fn drift_slope() {
+        let cfg = DetectorConfig {
+            drift_v_per_s: 0.02,
+            white_noise_v: 1e-3,
+            ..Default::default()
+        };
+        let fs = 1000.0;
+        let mut d = Detector::new(&cfg, fs, 3);
+        let y: Vec<f64> = (0..10_000).map(|_| d.step(0.5)).collect();
+        let s = slope(&y, fs);
+        assert!((s - 0.02).abs() < 1e-4, "slope {s}");
+    }
+
+    /// A fractional delay of 2.5 samples shifts a step by exactly that much.
+    #[test]
+    fn delay_is_exact() {
+        let fs = 8000.0;
+        let cfg = DetectorConfig {
+            delay_s: 2.5 / fs,
+            ..Default::default()
+        };
+        let mut d = Detector::new(&cfg, fs, 0);
+        let x: Vec<f64> = (0..20).map(|k| k as f64).collect();
+        let y: Vec<f64> = x.iter().map(|&v| d.step(v)).collect();
+        for k in 5..20 {
+            assert!((y[k] - (k as f64 - 2.5)).abs() < 1e-12, "k {k}: {}", y[k]);
+        }
+    }
+
+    /// Quantisation rounds to the LSB and the range clips.
+    #[test]
+    fn quantisation_and_range() {
+        let cfg = DetectorConfig {
+            lsb_v: 0.01,
+            range_v: 1.0,
+            ..Default::default()
+        };
+        let mut d = Detector::new(&cfg, 1000.0, 0);
+        assert!((d.step(0.123) - 0.12).abs() < 1e-12);
+        assert_eq!(d.step(5.0), 1.0);
+    }
+
+    /// Pink noise carries more power per octave... equal power per octave, so the
+    /// low band (below fs/64) has far more power per hertz than the high band.
+    #[test]
+    fn pink_noise_is_red() {
+        let cfg = DetectorConfig {
+            pink_noise_v: 1.0,
+            ..Default::default()
+        };
+        let fs = 1000.0;
+        let mut d = Detector::new(&cfg, fs, 9);
+        let y: Vec<f64> = (0..100_000).map(|_| d.step(0.0)).collect();
+        let rms = (y.iter().map(|v| v * v).sum::<f64>() / y.len() as f64).sqrt();
+        assert!((rms - 1.0).abs() < 0.15, "rms {rms}");
+        // Lag-1 correlation of 1/f noise is high; of white noise ≈ 0.
+        let c1 =
+            y.windows(2).map(|w| w[0] * w[1]).sum::<f64>() / y.iter().map(|v| v * v).sum::<f64>();
+        assert!(c1 > 0.5, "lag-1 correlation {c1}");
+    }
+}

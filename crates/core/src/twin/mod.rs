@@ -1,0 +1,541 @@
+//! The digital twin of an SPM indentation setup: the physics behind the simulated instrument.
+//!
+//! A [`Twin`] turns one drive-voltage sample into one deflection-voltage sample, in this order:
+//!
+//! ```text
+//! drive V ─ Actuator (gain, Bouc–Wen, creep, modes) ─ base position b (nm)
+//!         ─ tip–sample contact: Hertz/Sneddon + Prony material (Lee–Radok), contact point,
+//!           loss and re-contact, DMT adhesion, finite-thickness substrate, on the soft sample
+//!           or the hard reference ─ static deflection d (nm)
+//!         ─ hydrodynamic drag, lever first mode ─ deflection (nm) ─ Detector ─ deflection V
+//! ```
+//!
+//! Every part is switchable from the TOML configuration ([`TwinConfig`]): an absent table or a
+//! zero coefficient switches it off. [`TwinConfig::validate`] checks a configuration and names
+//! the key path of every problem. The twin is deterministic for a given seed and runs in
+//! simulated time; pacing to the wall clock is the HAL backend's business.
+//!
+//! Sign conventions are those of the recording spec: the base moves toward the sample for
+//! positive drive, deflection is positive when the tip is pushed away (repulsive force), the
+//! force on the sample is `K·d`, and the indentation is `C·(d_ref − d)` in volts terms.
+
+pub mod actuator;
+pub mod detector;
+pub mod dynamics;
+pub mod material;
+
+use crate::contact::{Contact, TipGeometry};
+use crate::prony::PronySeries;
+use actuator::{Actuator, ActuatorConfig};
+use detector::{Detector, DetectorConfig};
+use dynamics::SecondOrder;
+use material::MaterialState;
+use rand::rngs::StdRng;
+use rand::SeedableRng;
+use rand_distr::{Distribution, StandardNormal};
+use serde::{Deserialize, Serialize};
+
+/// The whole twin, as read from a `[twin]`-style TOML document.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TwinConfig {
+    /// Seed of every random process in the twin.
+    #[serde(default)]
+    pub seed: u64,
+    pub actuator: ActuatorConfig,
+    pub cantilever: CantileverConfig,
+    pub tip: TipConfig,
+    pub sample: SampleConfig,
+    #[serde(default)]
+    pub reference: ReferenceConfig,
+    #[serde(default)]
+    pub detector: DetectorConfig,
+    /// Hydrodynamic drag on the lever (absent: none).
+    #[serde(default)]
+    pub drag: Option<Drag>,
+    /// The actuator's own position sensor (absent: no `measured_height_nm` channel).
+    #[serde(default)]
+    pub height_sensor: Option<HeightSensor>,
+}
+
+/// `[cantilever]`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CantileverConfig {
+    /// K_t, N/m.
+    pub spring_constant_n_per_m: f64,
+    /// C_t, nm of tip displacement per volt of deflection signal.
+    pub deflection_sensitivity_nm_per_v: f64,
+    /// First flexural mode (absent: the lever responds instantly).
+    #[serde(default)]
+    pub first_mode: Option<actuator::ResonantMode>,
+}
+
+/// `[tip]`: geometry, in the recording spec's units.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "shape", rename_all = "lowercase", deny_unknown_fields)]
+pub enum TipConfig {
+    Sphere { radius_nm: f64 },
+    Cone { half_angle_deg: f64 },
+}
+
+/// `[sample]`: the soft sample under test.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SampleConfig {
+    #[serde(default)]
+    pub name: Option<String>,
+    /// Prony creep compliance, SI (`j0_per_pa`, `[[sample.material.terms]]` with `j_per_pa`, `tau_s`).
+    pub material: PronySeries,
+    #[serde(default = "half")]
+    pub poisson_ratio: f64,
+    /// Base position at which the tip first touches the surface, nm.
+    pub contact_point_nm: f64,
+    /// DMT adhesion (pull-off) force, nN (absent: none).
+    #[serde(default)]
+    pub adhesion_nn: Option<f64>,
+    /// Thickness of a film bonded to a rigid substrate, nm (absent: half-space).
+    #[serde(default)]
+    pub thickness_nm: Option<f64>,
+}
+
+fn half() -> f64 {
+    0.5
+}
+
+/// `[reference]`: the hard reference sample (e.g. sapphire) on the other stage slot.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReferenceConfig {
+    pub contact_point_nm: f64,
+    #[serde(default)]
+    pub adhesion_nn: Option<f64>,
+}
+
+impl Default for ReferenceConfig {
+    fn default() -> Self {
+        Self {
+            contact_point_nm: 0.0,
+            adhesion_nn: None,
+        }
+    }
+}
+
+/// `[drag]`: viscous drag on the lever, nN per (nm/s) of base velocity.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Drag {
+    pub coefficient_nn_s_per_nm: f64,
+}
+
+/// `[height_sensor]`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HeightSensor {
+    pub noise_nm: f64,
+}
+
+/// Which stage slot is under the tip.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SampleSlot {
+    Soft,
+    Reference,
+}
+
+/// One problem in a configuration, with the key path it concerns.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ConfigIssue {
+    pub path: String,
+    pub message: String,
+}
+
+impl std::fmt::Display for ConfigIssue {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "`{}`: {}", self.path, self.message)
+    }
+}
+
+impl TwinConfig {
+    /// Checks every value that the types cannot; returns all problems with their key paths.
+    /// `prefix` is the path of this table in the enclosing document (e.g. `"twin"`).
+    pub fn validate(&self, prefix: &str) -> Vec<ConfigIssue> {
+        let mut issues = Vec::new();
+        let p = |k: &str| {
+            if prefix.is_empty() {
+                k.to_string()
+            } else {
+                format!("{prefix}.{k}")
+            }
+        };
+        let mut positive = |path: String, v: f64| {
+            if !(v.is_finite() && v > 0.0) {
+                issues.push(ConfigIssue {
+                    path,
+                    message: format!("must be a positive finite number (got {v})"),
+                });
+            }
+        };
+        positive(p("actuator.gain_nm_per_v"), self.actuator.gain_nm_per_v);
+        for (i, m) in self.actuator.modes.iter().enumerate() {
+            positive(p(&format!("actuator.modes[{i}].freq_hz")), m.freq_hz);
+            positive(p(&format!("actuator.modes[{i}].q")), m.q);
+        }
+        if let Some(c) = self.actuator.creep {
+            positive(p("actuator.creep.tau_s"), c.tau_s);
+        }
+        positive(
+            p("cantilever.spring_constant_n_per_m"),
+            self.cantilever.spring_constant_n_per_m,
+        );
+        positive(
+            p("cantilever.deflection_sensitivity_nm_per_v"),
+            self.cantilever.deflection_sensitivity_nm_per_v,
+        );
+        if let Some(m) = self.cantilever.first_mode {
+            positive(p("cantilever.first_mode.freq_hz"), m.freq_hz);
+            positive(p("cantilever.first_mode.q"), m.q);
+        }
+        match self.tip {
+            TipConfig::Sphere { radius_nm } => positive(p("tip.radius_nm"), radius_nm),
+            TipConfig::Cone { half_angle_deg } => {
+                if !(half_angle_deg > 0.0 && half_angle_deg < 90.0) {
+                    issues.push(ConfigIssue {
+                        path: p("tip.half_angle_deg"),
+                        message: format!("must lie in (0, 90) degrees (got {half_angle_deg})"),
+                    });
+                }
+            }
+        }
+        let m = &self.sample.material;
+        let mut positive = |path: String, v: f64| {
+            if !(v.is_finite() && v > 0.0) {
+                issues.push(ConfigIssue {
+                    path,
+                    message: format!("must be a positive finite number (got {v})"),
+                });
+            }
+        };
+        positive(p("sample.material.j0_per_pa"), m.j0_per_pa);
+        for (i, t) in m.terms.iter().enumerate() {
+            positive(
+                p(&format!("sample.material.terms[{i}].j_per_pa")),
+                t.j_per_pa,
+            );
+            positive(p(&format!("sample.material.terms[{i}].tau_s")), t.tau_s);
+        }
+        if let Some(h) = self.sample.thickness_nm {
+            positive(p("sample.thickness_nm"), h);
+        }
+        if m.j0_per_pa.is_finite() && m.instantaneous_compliance() <= 0.0 {
+            issues.push(ConfigIssue {
+                path: p("sample.material"),
+                message: "J0 − ΣJi must be positive (a positive instantaneous compliance)".into(),
+            });
+        }
+        if !(self.sample.poisson_ratio >= 0.0 && self.sample.poisson_ratio <= 0.5) {
+            issues.push(ConfigIssue {
+                path: p("sample.poisson_ratio"),
+                message: format!("must lie in [0, 0.5] (got {})", self.sample.poisson_ratio),
+            });
+        }
+        for (path, v) in [
+            ("sample.adhesion_nn", self.sample.adhesion_nn),
+            ("reference.adhesion_nn", self.reference.adhesion_nn),
+        ] {
+            if let Some(v) = v {
+                if !(v.is_finite() && v >= 0.0) {
+                    issues.push(ConfigIssue {
+                        path: p(path),
+                        message: format!("must be ≥ 0 nN (got {v})"),
+                    });
+                }
+            }
+        }
+        let d = &self.detector;
+        for (path, v) in [
+            ("detector.white_noise_v", d.white_noise_v),
+            ("detector.pink_noise_v", d.pink_noise_v),
+            ("detector.delay_s", d.delay_s),
+            ("detector.lsb_v", d.lsb_v),
+            ("detector.range_v", d.range_v),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                issues.push(ConfigIssue {
+                    path: p(path),
+                    message: format!("must be ≥ 0 (got {v})"),
+                });
+            }
+        }
+        issues
+    }
+
+    /// The contact transform of this tip and sample.
+    pub fn contact(&self) -> Contact {
+        let tip = match self.tip {
+            TipConfig::Sphere { radius_nm } => TipGeometry::Sphere {
+                radius_m: radius_nm * 1e-9,
+            },
+            TipConfig::Cone { half_angle_deg } => TipGeometry::Cone {
+                half_angle_rad: half_angle_deg.to_radians(),
+            },
+        };
+        Contact {
+            tip,
+            poisson_ratio: self.sample.poisson_ratio,
+        }
+    }
+}
+
+/// What the twin knows that an instrument would not: the truth of one sample.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct TruthSample {
+    /// Base (actuator) position, nm.
+    pub base_nm: f64,
+    /// Lever deflection, nm (positive = repulsive).
+    pub deflection_nm: f64,
+    /// Force on the lever `K·d`, N.
+    pub force_n: f64,
+    /// Indentation of the surface under the tip, m (0 out of contact or on the reference).
+    pub indentation_m: f64,
+    pub in_contact: bool,
+}
+
+/// One simulated sample.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TwinSample {
+    /// The detector's deflection reading, V.
+    pub deflection_v: f64,
+    /// The height sensor's reading, nm (when configured).
+    pub measured_height_nm: Option<f64>,
+    pub truth: TruthSample,
+}
+
+/// The running twin.
+#[derive(Debug, Clone)]
+pub struct Twin {
+    cfg: TwinConfig,
+    fs_hz: f64,
+    actuator: Actuator,
+    material: MaterialState,
+    contact: Contact,
+    slot: SampleSlot,
+    in_contact: bool,
+    lever: Option<SecondOrder>,
+    detector: Detector,
+    sensor_rng: StdRng,
+    last_base_nm: f64,
+}
+
+impl Twin {
+    /// Builds a twin; call [`TwinConfig::validate`] first — invalid values give nonsense here.
+    pub fn new(cfg: &TwinConfig, fs_hz: f64) -> Self {
+        let mut twin = Self {
+            actuator: Actuator::new(&cfg.actuator, fs_hz),
+            material: MaterialState::new(&cfg.sample.material, fs_hz),
+            contact: cfg.contact(),
+            slot: SampleSlot::Soft,
+            in_contact: false,
+            lever: cfg
+                .cantilever
+                .first_mode
+                .map(|m| SecondOrder::new(m.freq_hz, m.q, fs_hz)),
+            detector: Detector::new(&cfg.detector, fs_hz, cfg.seed),
+            sensor_rng: StdRng::seed_from_u64(cfg.seed ^ 0x5eed_4e16),
+            cfg: cfg.clone(),
+            fs_hz,
+            last_base_nm: 0.0,
+        };
+        twin.settle(0.0);
+        twin
+    }
+
+    pub fn config(&self) -> &TwinConfig {
+        &self.cfg
+    }
+
+    pub fn sample_rate_hz(&self) -> f64 {
+        self.fs_hz
+    }
+
+    /// Puts the instrument at rest at drive `v`, out of contact history (material relaxed).
+    pub fn settle(&mut self, v: f64) {
+        self.actuator.settle(v);
+        self.material = MaterialState::new(&self.cfg.sample.material, self.fs_hz);
+        self.in_contact = false;
+        self.last_base_nm = self.actuator.position_nm();
+        let d = self.solve_contact(self.last_base_nm, false);
+        if let Some(l) = self.lever.as_mut() {
+            l.settle(d);
+        }
+        self.detector
+            .settle(d / self.cfg.cantilever.deflection_sensitivity_nm_per_v);
+    }
+
+    /// Moves the other stage slot under the tip (the material under test relaxes meanwhile).
+    pub fn select(&mut self, slot: SampleSlot) {
+        self.slot = slot;
+        self.in_contact = false;
+        self.material = MaterialState::new(&self.cfg.sample.material, self.fs_hz);
+    }
+
+    pub fn slot(&self) -> SampleSlot {
+        self.slot
+    }
+
+    /// Advances one sample with drive `v` volts.
+    pub fn step(&mut self, v: f64) -> TwinSample {
+        let base = self.actuator.step(v);
+        let d_static = self.solve_contact(base, true);
+        let k = self.cfg.cantilever.spring_constant_n_per_m;
+        let mut d = d_static;
+        if let Some(drag) = self.cfg.drag {
+            // Drag force c·ḃ (nN) deflects the lever like a repulsive force while approaching.
+            let vel = (base - self.last_base_nm) * self.fs_hz;
+            d += drag.coefficient_nn_s_per_nm * vel / k;
+        }
+        self.last_base_nm = base;
+        if let Some(l) = self.lever.as_mut() {
+            d = l.step(d);
+        }
+        let clean_v = d / self.cfg.cantilever.deflection_sensitivity_nm_per_v;
+        let deflection_v = self.detector.step(clean_v);
+        let measured_height_nm = self.cfg.height_sensor.map(|s| {
+            let z: f64 = StandardNormal.sample(&mut self.sensor_rng);
+            base + s.noise_nm * z
+        });
+        let surface = match self.slot {
+            SampleSlot::Soft => self.cfg.sample.contact_point_nm,
+            SampleSlot::Reference => self.cfg.reference.contact_point_nm,
+        };
+        let indentation_m = if self.in_contact && self.slot == SampleSlot::Soft {
+            ((base - d_static - surface) * 1e-9).max(0.0)
+        } else {
+            0.0
+        };
+        TwinSample {
+            deflection_v,
+            measured_height_nm,
+            truth: TruthSample {
+                base_nm: base,
+                deflection_nm: d,
+                force_n: k * d * 1e-9,
+                indentation_m,
+                in_contact: self.in_contact,
+            },
+        }
+    }
+
+    /// Static deflection (nm) at base position `base_nm`; with `commit` the material and the
+    /// contact state advance.
+    fn solve_contact(&mut self, base_nm: f64, commit: bool) -> f64 {
+        let k = self.cfg.cantilever.spring_constant_n_per_m; // N/m = nN/nm
+        match self.slot {
+            SampleSlot::Reference => {
+                let r = self.cfg.reference;
+                let f_adh = r.adhesion_nn.unwrap_or(0.0);
+                let d = base_nm - r.contact_point_nm;
+                // Rigid: no indentation. In contact while the contact force K·d + F_adh ≥ 0.
+                let touching = if self.in_contact {
+                    k * d + f_adh >= 0.0
+                } else {
+                    d >= 0.0
+                };
+                if commit {
+                    self.in_contact = touching;
+                }
+                if touching {
+                    d
+                } else {
+                    0.0
+                }
+            }
+            SampleSlot::Soft => self.solve_soft(base_nm, commit),
+        }
+    }
+
+    fn solve_soft(&mut self, base_nm: f64, commit: bool) -> f64 {
+        let s = &self.cfg.sample;
+        let k = self.cfg.cantilever.spring_constant_n_per_m;
+        let f_adh_n = s.adhesion_nn.unwrap_or(0.0) * 1e-9;
+        let cf = self.contact.force_factor();
+        let expo = self.contact.indentation_exponent();
+        let (alpha, beta) = self.material.affine();
+        let gap_m = (base_nm - s.contact_point_nm) * 1e-9;
+        let k_si = k; // N/m
+        let corr = |h_m: f64| -> f64 {
+            match (s.thickness_nm, self.cfg.tip) {
+                // Dimitriadis et al. (2002), film bonded to a rigid substrate, ν ≈ 0.5.
+                (Some(th), TipConfig::Sphere { radius_nm }) if h_m > 0.0 => {
+                    let chi = (radius_nm * 1e-9 * h_m).sqrt() / (th * 1e-9);
+                    1.0 + 1.133 * chi
+                        + 1.283 * chi.powi(2)
+                        + 0.769 * chi.powi(3)
+                        + 0.0975 * chi.powi(4)
+                }
+                _ => 1.0,
+            }
+        };
+        // g(d) = h^k − α·u(d) − β with h = gap − d, u = cf·(K·d + F_adh)/corr(h); decreasing in d.
+        let g = |d_m: f64| -> f64 {
+            let h = gap_m - d_m;
+            let hk = if h > 0.0 { h.powf(expo) } else { 0.0 };
+            hk - alpha * cf * (k_si * d_m + f_adh_n) / corr(h.max(0.0)) - beta
+        };
+        let d_lo = -f_adh_n / k_si;
+        let touching = if self.in_contact {
+            g(d_lo) >= 0.0 && gap_m - d_lo > 0.0
+        } else {
+            gap_m > 0.0 && gap_m.powf(expo) > beta
+        };
+        let (d_m, u) = if touching {
+            // Bracketed bisection refined by secant steps (g is smooth and monotone here).
+            let (mut lo, mut hi) = (d_lo, gap_m.max(d_lo));
+            let (mut glo, mut ghi) = (g(lo), g(hi));
+            let mut d = lo;
+            for _ in 0..100 {
+                d = if glo != ghi {
+                    lo - glo * (hi - lo) / (ghi - glo)
+                } else {
+                    0.5 * (lo + hi)
+                };
+                if !(d > lo && d < hi) {
+                    d = 0.5 * (lo + hi);
+                }
+                let gd = g(d);
+                if gd > 0.0 {
+                    lo = d;
+                    glo = gd;
+                } else {
+                    hi = d;
+                    ghi = gd;
+                }
+                // Illinois-style safeguard: also bisect, so the bracket always shrinks.
+                let mid = 0.5 * (lo + hi);
+                let gm = g(mid);
+                if gm > 0.0 {
+                    lo = mid;
+                    glo = gm;
+                } else {
+                    hi = mid;
+                    ghi = gm;
+                }
+                if hi - lo <= 1e-15 * (1.0 + gap_m.abs()) {
+                    break;
+                }
+            }
+            let h = (gap_m - d).max(0.0);
+            (d, cf * (k_si * d + f_adh_n) / corr(h))
+        } else {
+            (0.0, 0.0)
+        };
+        if commit {
+            self.in_contact = touching;
+            self.material.commit(u);
+        }
+        d_m * 1e9
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,142 @@
+//! Analytic checks of the assembled twin.
+
+use super::*;
+use crate::prony::PronyTerm;
+
+fn elastic(j: f64) -> PronySeries {
+    PronySeries::new(j, vec![])
+}
+
+fn base_config() -> TwinConfig {
+    TwinConfig {
+        seed: 1,
+        actuator: ActuatorConfig {
+            gain_nm_per_v: 100.0,
+            modes: vec![],
+            hysteresis: None,
+            creep: None,
+        },
+        cantilever: CantileverConfig {
+            spring_constant_n_per_m: 0.065,
+            deflection_sensitivity_nm_per_v: 85.0,
+            first_mode: None,
+        },
+        tip: TipConfig::Sphere { radius_nm: 20.0 },
+        sample: SampleConfig {
+            name: None,
+            material: elastic(1e-6),
+            poisson_ratio: 0.5,
+            contact_point_nm: 100.0,
+            adhesion_nn: None,
+            thickness_nm: None,
+        },
+        reference: ReferenceConfig {
+            contact_point_nm: 100.0,
+            adhesion_nn: None,
+        },
+        detector: DetectorConfig::default(),
+        drag: None,
+        height_sensor: None,
+    }
+}
+
+/// Static Hertz: at rest, the lever deflection and the indentation satisfy
+/// K·d = (4/3)·E/(1−ν²)·√R·h^{3/2} and d + h = b − contact point.
+#[test]
+fn static_hertz_indentation() {
+    let cfg = base_config();
+    assert!(cfg.validate("").is_empty());
+    let mut twin = Twin::new(&cfg, 8000.0);
+    let mut s = twin.step(0.0);
+    for _ in 0..10 {
+        s = twin.step(1.5); // base 150 nm: 50 nm past the contact point
+    }
+    let t = s.truth;
+    assert!(t.in_contact);
+    let e = 1e6;
+    let hertz = 4.0 / 3.0 * e / 0.75 * (20e-9f64).sqrt() * t.indentation_m.powf(1.5);
+    assert!(
+        (t.force_n - hertz).abs() / hertz < 1e-9,
+        "force {} vs Hertz {hertz}",
+        t.force_n
+    );
+    let d_plus_h = t.deflection_nm + t.indentation_m * 1e9;
+    assert!((d_plus_h - 50.0).abs() < 1e-9, "{d_plus_h}");
+    assert!((s.deflection_v - t.deflection_nm / 85.0).abs() < 1e-12);
+}
+
+/// On the hard reference the lever takes all of the base motion past contact.
+#[test]
+fn hard_reference_is_rigid() {
+    let mut twin = Twin::new(&base_config(), 8000.0);
+    twin.select(SampleSlot::Reference);
+    twin.step(0.0);
+    let s = twin.step(1.2);
+    assert!((s.truth.deflection_nm - 20.0).abs() < 1e-12);
+    assert_eq!(s.truth.indentation_m, 0.0);
+    assert_eq!(
+        twin.step(0.5).truth.deflection_nm,
+        0.0,
+        "lifted off: no deflection"
+    );
+}
+
+/// With DMT adhesion, the tip stays stuck on the way back until the pull-off force
+/// −F_adh = K·d is reached: negative deflection before release.
+#[test]
+fn adhesion_gives_pull_off() {
+    let mut cfg = base_config();
+    cfg.sample.adhesion_nn = Some(2.0);
+    let mut twin = Twin::new(&cfg, 8000.0);
+    let mut min_force: f64 = 0.0;
+    let n = 4000;
+    for k in 0..=2 * n {
+        let v = 1.5 * (1.0 - ((k as f64 - n as f64) / n as f64).abs()); // up to 150 nm and back
+        let s = twin.step(v);
+        min_force = min_force.min(s.truth.force_n);
+    }
+    assert!(
+        (min_force + 2e-9).abs() < 0.02e-9,
+        "pull-off force {min_force} N, expected −2 nN"
+    );
+    assert!(!twin.step(0.0).truth.in_contact);
+}
+
+/// A force held constant on a viscoelastic sample creeps: the indentation follows
+/// h^{3/2}(t) = J(t)·u exactly (Lee–Radok), checked through the twin's own force.
+#[test]
+fn viscoelastic_creep_under_constant_base() {
+    let mut cfg = base_config();
+    cfg.sample.material = PronySeries::new(
+        4e-6,
+        vec![PronyTerm {
+            j_per_pa: 1.5e-6,
+            tau_s: 0.02,
+        }],
+    );
+    // A very stiff lever: the force stays nearly constant while the sample creeps.
+    cfg.cantilever.spring_constant_n_per_m = 1e-4;
+    let fs = 8000.0;
+    let mut twin = Twin::new(&cfg, fs);
+    twin.step(0.0);
+    let mut first = None;
+    let mut last = None;
+    for k in 0..4000 {
+        let s = twin.step(2.0);
+        if k == 0 {
+            first = Some(s.truth);
+        }
+        last = Some(s.truth);
+    }
+    let (f, l) = (first.unwrap(), last.unwrap());
+    // Soft lever: force ≈ K·(100 nm) nearly constant; indentation grows by J0/(J0 − J1).
+    let cf = cfg.contact().force_factor();
+    let y_last = l.indentation_m.powf(1.5);
+    let y_expected = 4e-6 * cf * l.force_n;
+    assert!(
+        (y_last - y_expected).abs() / y_expected < 1e-3,
+        "{y_last} vs {y_expected}"
+    );
+    let ratio = l.indentation_m.powf(1.5) / f.indentation_m.powf(1.5) * f.force_n / l.force_n;
+    assert!((ratio - 4.0 / 2.5).abs() < 0.02, "creep ratio {ratio}");
+}
