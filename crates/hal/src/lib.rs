@@ -1,7 +1,27 @@
-//! The hardware abstraction layer of viscoprobe: the instrument traits that every backend
-//! (serial DAQ, simulated SPM) implements, and the safety layer that wraps them.
+//! The hardware abstraction layer of viscoprobe.
 //!
-//! Nothing is defined here yet: the traits, the safety layer and the simulated SPM arrive
-//! with the HAL issue (#4), the serial DAQ driver with #5. The crate exists so that the
-//! workspace has its final shape and the dependency direction (`hal → core`, never back)
-//! is fixed from the start.
+//! [`Instrument`] is the one trait every backend implements: a piezo drive output (DAC) and
+//! deflection inputs (ADC) on one sample clock, streamed in blocks — drive written ahead, inputs
+//! read back with sequence numbers and sample-exact alignment — with discoverable
+//! [`Capabilities`]. Errors are [`HalError`]s whose kind says whether retrying can help.
+//!
+//! [`Guarded`] wraps any instrument and enforces the drive voltage, slew-rate and force limits
+//! below every controller, retracting the actuator on abort or fault. Backends:
+//!
+//! * [`sim::SimulatedSpm`] — the digital twin of `viscoprobe_core::twin`, in simulated time
+//!   or paced to the wall clock;
+//! * the serial DAQ board (issue #5, not yet here).
+//!
+//! This crate does blocking I/O and may sleep (wall-clock pacing); it knows nothing of tokio,
+//! configuration files or run storage, which belong to the daemon.
+
+pub mod error;
+pub mod instrument;
+pub mod safety;
+pub mod sim;
+
+pub use error::{HalError, HalErrorKind};
+pub use instrument::{
+    Capabilities, ChannelRange, InputBlock, InputChannel, Instrument, SampleSlot, StreamConfig,
+};
+pub use safety::{ForceCalibration, Guarded, SafetyLimits, SafetyStats};
