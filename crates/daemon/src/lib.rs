@@ -2,4 +2,5 @@
 //! `viscoprobed` service). Everything here may touch files, the terminal and the clock;
 //! the science it prints comes from `viscoprobe_core`.
 pub mod cli;
+pub mod config;
 pub mod output;

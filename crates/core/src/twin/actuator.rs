@@ -9,7 +9,6 @@ use serde::{Deserialize, Serialize};
 
 /// Actuator parameters, as in the twin's TOML `[actuator]` table.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct ActuatorConfig {
     /// Static gain, nm/V.
     pub gain_nm_per_v: f64,
@@ -26,7 +25,6 @@ pub struct ActuatorConfig {
 
 /// One resonance of the scanner.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct ResonantMode {
     pub freq_hz: f64,
     pub q: f64,
@@ -35,7 +33,6 @@ pub struct ResonantMode {
 /// Bouc–Wen model in its piezo form: `dh = α·g·dv − β·|dv|·h − γ·dv·|h|` (h in nm).
 /// It depends on increments of `v` only, so its loops are rate independent.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct BoucWen {
     /// Dimensionless; loop width scales with it (0.1–0.2 typical of PZT).
     pub alpha: f64,
@@ -47,7 +44,6 @@ pub struct BoucWen {
 
 /// Linear creep: an extra `fraction·g·v` approached with time constant `tau_s`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct Creep {
     pub fraction: f64,
     pub tau_s: f64,

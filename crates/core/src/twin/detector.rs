@@ -11,7 +11,6 @@ use serde::{Deserialize, Serialize};
 
 /// `[detector]` table.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
-#[serde(deny_unknown_fields)]
 pub struct DetectorConfig {
     /// White noise, V rms per sample.
     #[serde(default)]
@@ -41,7 +40,6 @@ pub struct DetectorConfig {
 
 /// Mains interference.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct Mains {
     pub freq_hz: f64,
     pub amplitude_v: f64,

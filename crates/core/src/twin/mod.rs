@@ -37,7 +37,6 @@ use serde::{Deserialize, Serialize};
 
 /// The whole twin, as read from a `[twin]`-style TOML document.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct TwinConfig {
     /// Seed of every random process in the twin.
     #[serde(default)]
@@ -60,7 +59,6 @@ pub struct TwinConfig {
 
 /// `[cantilever]`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct CantileverConfig {
     /// K_t, N/m.
     pub spring_constant_n_per_m: f64,
@@ -73,7 +71,7 @@ pub struct CantileverConfig {
 
 /// `[tip]`: geometry, in the recording spec's units.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "shape", rename_all = "lowercase", deny_unknown_fields)]
+#[serde(tag = "shape", rename_all = "lowercase")]
 pub enum TipConfig {
     Sphere { radius_nm: f64 },
     Cone { half_angle_deg: f64 },
@@ -81,7 +79,6 @@ pub enum TipConfig {
 
 /// `[sample]`: the soft sample under test.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct SampleConfig {
     #[serde(default)]
     pub name: Option<String>,
@@ -105,7 +102,6 @@ fn half() -> f64 {
 
 /// `[reference]`: the hard reference sample (e.g. sapphire) on the other stage slot.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct ReferenceConfig {
     pub contact_point_nm: f64,
     #[serde(default)]
@@ -123,14 +119,12 @@ impl Default for ReferenceConfig {
 
 /// `[drag]`: viscous drag on the lever, nN per (nm/s) of base velocity.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct Drag {
     pub coefficient_nn_s_per_nm: f64,
 }
 
 /// `[height_sensor]`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct HeightSensor {
     pub noise_nm: f64,
 }
