@@ -15,6 +15,7 @@
 //! This crate does blocking I/O and may sleep (wall-clock pacing); it knows nothing of tokio,
 //! configuration files or run storage, which belong to the daemon.
 
+pub mod acquire;
 pub mod error;
 pub mod instrument;
 pub mod safety;

@@ -43,6 +43,7 @@ pub struct SimulatedSpm {
     last_drive: f64,
     slot: SampleSlot,
     truth: Vec<TruthSample>,
+    truth_log: Vec<TruthSample>,
 }
 
 impl SimulatedSpm {
@@ -61,6 +62,7 @@ impl SimulatedSpm {
             last_drive: 0.0,
             slot: SampleSlot::Soft,
             truth: Vec::new(),
+            truth_log: Vec::new(),
         }
     }
 
@@ -71,6 +73,11 @@ impl SimulatedSpm {
     /// The true force and indentation of the samples of the last block.
     pub fn last_truth(&self) -> &[TruthSample] {
         &self.truth
+    }
+
+    /// The truth of every sample since the last `start`.
+    pub fn last_truth_log(&self) -> &[TruthSample] {
+        &self.truth_log
     }
 }
 
@@ -135,6 +142,7 @@ impl Instrument for SimulatedSpm {
         }
         self.running = true;
         self.seq = 0;
+        self.truth_log.clear();
         self.started = Some(Instant::now());
         Ok(())
     }
@@ -183,6 +191,7 @@ impl Instrument for SimulatedSpm {
             }
             drive.push(v);
             self.truth.push(s.truth);
+            self.truth_log.push(s.truth);
             self.last_drive = v;
         }
         let first_sample = self.sample;

@@ -22,6 +22,7 @@
 pub mod actuator;
 pub mod detector;
 pub mod dynamics;
+pub mod feedforward;
 pub mod material;
 
 use crate::contact::{Contact, TipGeometry};
