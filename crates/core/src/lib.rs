@@ -3,6 +3,7 @@ pub mod contact;
 pub mod design;
 pub mod discrete;
 pub mod prony;
+pub mod recording;
 pub mod fisher;
 pub mod linalg;
 pub mod estimate;
