@@ -6,6 +6,7 @@ use clap::{Parser, Subcommand};
 pub mod design;
 pub mod reproduce;
 pub mod run;
+pub mod simulate;
 
 /// viscoprobe — rapid broadband nanomechanical spectroscopy of soft materials.
 #[derive(Debug, Parser)]
@@ -20,6 +21,8 @@ pub enum Command {
     /// Regenerate the paper's simulation studies and compare estimators against the truth.
     #[command(subcommand)]
     Reproduce(reproduce::ReproduceCommand),
+    /// Simulate an open-loop measurement on the simulated SPM and write it as a recording.
+    Simulate(simulate::SimulateArgs),
     /// Run a closed-loop measurement from a configuration file (default config/sim-pdms.toml).
     Run(run::RunArgs),
     /// Design a D-optimal multisine for a prior model (band, exclusions, level, preload) and
@@ -32,6 +35,7 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Reproduce(cmd) => reproduce::run(cmd),
         Command::Run(args) => run::run(args),
+        Command::Simulate(args) => simulate::run(args),
         Command::Design(args) => design::run(args),
     }
 }

@@ -1,0 +1,112 @@
+//! `viscoprobe simulate`: an open-loop measurement on the simulated SPM, written as a recording.
+
+use crate::config::SimConfigFile;
+use crate::simrun::{drive_profile, read_drive, simulate_recording, Protocol};
+use anyhow::Context;
+use clap::Args;
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+
+#[derive(Debug, Args)]
+pub struct SimulateArgs {
+    /// Simulation configuration (e.g. config/sim-pdms.toml).
+    #[arg(long)]
+    pub config: PathBuf,
+    /// The excitation: a CSV with `drive_v` (volts, used as is) or `u` (a shape, e.g. from
+    /// `viscoprobe design --out`), or a design JSON from `viscoprobe design --json`.
+    #[arg(long)]
+    pub drive: PathBuf,
+    /// Output samples file; the sidecar goes next to it with the extension `.toml`.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Mean force in contact while a shape is played, nN.
+    #[arg(long, default_value_t = 5.0)]
+    pub preload_nn: f64,
+    /// RMS of the force excitation, nN.
+    #[arg(long, default_value_t = 1.0)]
+    pub force_rms_nn: f64,
+    /// Override the twin's seed.
+    #[arg(long)]
+    pub seed: Option<u64>,
+}
+
+pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
+    let (mut cfg, warnings) = SimConfigFile::load(&args.config)?;
+    for w in &warnings {
+        eprintln!("warning: {w}");
+    }
+    if let Some(seed) = args.seed {
+        cfg.twin.seed = seed;
+    }
+    anyhow::ensure!(
+        args.preload_nn > 0.0 && args.force_rms_nn > 0.0,
+        "--preload-nn and --force-rms-nn must be positive"
+    );
+    let src = read_drive(&args.drive, cfg.instrument.sample_rate_hz)?;
+    let protocol = Protocol {
+        preload_n: args.preload_nn * 1e-9,
+        force_rms_n: args.force_rms_nn * 1e-9,
+        ..Protocol::default()
+    };
+    let profile = drive_profile(&cfg, &src, &protocol)?;
+    let fs = cfg.instrument.sample_rate_hz;
+    eprintln!(
+        "simulating {:.2} s at {} Hz on {} (reference, then sample)",
+        profile.drive_v.len() as f64 / fs,
+        fs,
+        args.config.display()
+    );
+    let tty = std::io::stderr().is_terminal();
+    let started = std::time::Instant::now();
+    let rec = simulate_recording(&cfg, &profile, |label, done, total| {
+        if tty {
+            eprint!("\r  {label}: {:5.1} %", 100.0 * done as f64 / total as f64);
+        }
+    })?;
+    if tty {
+        eprintln!();
+    }
+    let sidecar = args.out.with_extension("toml");
+    write_atomic(&args.out, &sidecar, &rec)?;
+    let elapsed = started.elapsed().as_secs_f64();
+    println!(
+        "wrote {} and {} ({} samples; {:.2} s simulated twice, reference and sample, in {:.2} s: {:.0}× real time)",
+        args.out.display(),
+        sidecar.display(),
+        rec.len(),
+        rec.len() as f64 / fs,
+        elapsed,
+        rec.len() as f64 / fs / elapsed.max(1e-9) * 2.0
+    );
+    println!(
+        "excitation: {} periods of {:.3} s from t = {:.3} s; truth in the sidecar's [truth] table",
+        profile.periods,
+        profile.period_samples as f64 / fs,
+        profile.excitation_start as f64 / fs
+    );
+    Ok(())
+}
+
+/// Writes both files through temporary names and renames them into place.
+pub fn write_atomic(
+    csv: &Path,
+    sidecar: &Path,
+    rec: &viscoprobe_core::recording::Recording,
+) -> anyhow::Result<()> {
+    let tmp_csv = csv.with_extension("csv.partial");
+    let tmp_toml = sidecar.with_extension("toml.partial");
+    {
+        let c = std::io::BufWriter::new(
+            std::fs::File::create(&tmp_csv)
+                .with_context(|| format!("cannot create {}", tmp_csv.display()))?,
+        );
+        let t = std::io::BufWriter::new(
+            std::fs::File::create(&tmp_toml)
+                .with_context(|| format!("cannot create {}", tmp_toml.display()))?,
+        );
+        rec.write(c, t).context("writing the recording")?;
+    }
+    std::fs::rename(&tmp_toml, sidecar)?;
+    std::fs::rename(&tmp_csv, csv)?;
+    Ok(())
+}
