@@ -16,11 +16,13 @@
 //! configuration files or run storage, which belong to the daemon.
 
 pub mod acquire;
+pub mod daq;
 pub mod error;
 pub mod instrument;
 pub mod safety;
 pub mod sim;
 
+pub use daq::{DaqStats, SerialDaq, SerialOptions};
 pub use error::{HalError, HalErrorKind};
 pub use instrument::{
     Capabilities, ChannelRange, InputBlock, InputChannel, Instrument, SampleSlot, StreamConfig,

@@ -311,7 +311,7 @@ impl<'a> Reader<'a> {
         let max = self.f32()?;
         let bits = self.u8()?;
         let name = self.text()?;
-        if !(2..=32).contains(&bits) || !(min < max) {
+        if !(2..=32).contains(&bits) || min.partial_cmp(&max) != Some(std::cmp::Ordering::Less) {
             return Err(self.err("channel range invalid"));
         }
         Ok(WireChannel {
@@ -398,7 +398,9 @@ impl Message {
     pub fn encode(&self) -> Vec<u8> {
         let mut o = vec![self.kind()];
         match self {
-            Self::Hello { protocol_version } => o.extend_from_slice(&protocol_version.to_le_bytes()),
+            Self::Hello { protocol_version } => {
+                o.extend_from_slice(&protocol_version.to_le_bytes())
+            }
             Self::Configure(c) => {
                 o.extend_from_slice(&c.sample_rate_hz.to_le_bytes());
                 o.extend_from_slice(&c.block_len.to_le_bytes());
@@ -476,7 +478,10 @@ impl Message {
                 what: "empty body".into(),
             });
         };
-        let mut r = Reader { b: payload, kind: k };
+        let mut r = Reader {
+            b: payload,
+            kind: k,
+        };
         let m = match k {
             kind::HELLO => Self::Hello {
                 protocol_version: r.u16()?,
