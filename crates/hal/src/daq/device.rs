@@ -10,8 +10,8 @@
 
 use super::frame::{FrameError, MAX_BODY_LEN};
 use super::protocol::{
-    from_code, kind, sample_bytes, to_code, Caps, Configure, DeviceState, ErrorCode, Message,
-    Status, WireChannel, PROTOCOL_VERSION,
+    from_code, kind, to_code, Caps, Configure, DeviceState, ErrorCode, Message, Status,
+    WireChannel, PROTOCOL_VERSION,
 };
 use std::collections::VecDeque;
 use viscoprobe_core::twin::{Twin, TwinConfig};
@@ -573,9 +573,4 @@ impl<P: Plant> Device<P> {
             self.last_tx_ms = now_ms;
         }
     }
-}
-
-/// Bytes per drive sample for the device's drive converter.
-pub fn drive_sample_bytes(caps: &Caps) -> u8 {
-    sample_bytes(caps.drive.bits)
 }

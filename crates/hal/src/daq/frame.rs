@@ -192,6 +192,27 @@ mod tests {
         assert_eq!(crc32(b"123456789"), 0xCBF4_3926);
     }
 
+    /// The examples of docs/daq-protocol.md §2, byte for byte.
+    #[test]
+    fn protocol_doc_examples() {
+        assert_eq!(
+            encode_frame(&[0x01, 0x01, 0x00]),
+            [0x03, 0x01, 0x01, 0x05, 0x64, 0x82, 0x98, 0xE7, 0x00]
+        );
+        let body = crate::daq::protocol::Message::Drive {
+            first_sample: 1600,
+            sample_bytes: 2,
+            codes: vec![0, 100, -100, 32767],
+        }
+        .encode();
+        let wire: Vec<u8> =
+            "04 06 40 06 01 01 01 01 01 02 04 02 02 01 02 64 09 9C FF FF 7F 93 BB 58 DF 00"
+                .split(' ')
+                .map(|h| u8::from_str_radix(h, 16).unwrap())
+                .collect();
+        assert_eq!(encode_frame(&body), wire);
+    }
+
     #[test]
     fn cobs_round_trips_edge_cases() {
         let cases: Vec<Vec<u8>> = vec![
