@@ -463,4 +463,25 @@ fn config_file_twin_table_is_loaded() {
     let (drive, _) = step_drive(3 * BLOCK);
     let (blocks, errors) = stream(&mut daq, &drive, 5);
     assert!(errors.is_empty() && blocks.len() == 3, "{errors:?}");
+    // The emulator exits cleanly when the host closes the port...
+    drop(daq);
+    let mut emu = emu;
+    assert_eq!(wait_exit(&mut emu), Some(0));
+    // ... and on SIGTERM.
+    let mut emu = Emu::spawn(&[]);
+    // SAFETY: signalling our own child.
+    unsafe { libc::kill(emu.child.id() as i32, libc::SIGTERM) };
+    assert_eq!(wait_exit(&mut emu), Some(0));
+}
+
+/// The emulator's exit code, if it exits within 2 s.
+fn wait_exit(emu: &mut Emu) -> Option<i32> {
+    let t0 = Instant::now();
+    while t0.elapsed() < Duration::from_secs(2) {
+        if let Ok(Some(st)) = emu.child.try_wait() {
+            return st.code();
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    None
 }
