@@ -9,3 +9,4 @@ pub mod linalg;
 pub mod estimate;
 pub mod studies;
 pub mod twin;
+pub mod miic;

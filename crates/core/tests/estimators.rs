@@ -137,3 +137,24 @@ fn arx_is_exact_without_noise() {
         assert!(((e - t) / t).abs() < 1e-8, "{t} vs {e}");
     }
 }
+
+/// A linear drift added to periodic data is removed exactly; the periodic part is untouched.
+#[test]
+fn linear_drift_is_removed() {
+    use viscoprobe_core::estimate::frequency::remove_linear_drift;
+    let np = 400;
+    let periodic: Vec<f64> = (0..3 * np)
+        .map(|i| (2.0 * std::f64::consts::PI * (i % np) as f64 / np as f64 * 3.0).sin())
+        .collect();
+    let drifted: Vec<f64> = periodic
+        .iter()
+        .enumerate()
+        .map(|(i, v)| v + 1e-3 * i as f64 + 0.5)
+        .collect();
+    let back = remove_linear_drift(&drifted, 3);
+    let mean_p = periodic.iter().sum::<f64>() / periodic.len() as f64;
+    let mean_b = back.iter().sum::<f64>() / back.len() as f64;
+    for (a, b) in periodic.iter().zip(&back) {
+        assert!(((a - mean_p) - (b - mean_b)).abs() < 1e-9, "{a} vs {b}");
+    }
+}

@@ -144,11 +144,179 @@ pub enum PacingName {
     WallClock,
 }
 
-/// A simulated-instrument configuration (`config/sim-*.toml`).
+/// A simulated-instrument configuration (`config/sim-*.toml`): the instrument, the twin
+/// behind it, and the measurement plan and safety limits of `viscoprobe run`.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct SimConfigFile {
     pub instrument: InstrumentSection,
     pub twin: TwinConfig,
+    #[serde(default)]
+    pub run: RunPlan,
+    #[serde(default)]
+    pub safety: SafetySection,
+}
+
+/// `[run]`: the closed-loop measurement plan.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(default)]
+pub struct RunPlan {
+    /// Mean force in contact, nN.
+    pub preload_nn: f64,
+    /// RMS of the force excitation, nN.
+    pub force_rms_nn: f64,
+    /// Design band, Hz.
+    pub band_hz: [f64; 2],
+    /// Length of one acquisition, s (whole periods).
+    pub duration_s: f64,
+    /// Periods per acquisition (≥ 2 lets the estimator measure the noise).
+    pub periods: usize,
+    /// Prony terms to estimate.
+    pub order: usize,
+    /// Design iterations at most.
+    pub max_iterations: usize,
+    /// Stop when the relative parameter change falls below this.
+    pub rel_change_tol: f64,
+    /// Mains frequency to keep dark (with harmonics), Hz; 0 = none.
+    pub exclude_mains_hz: f64,
+    /// `measured` (run each drive on the hard reference too) or `predicted` (from calibration).
+    pub reference: ReferenceMode,
+    /// Where run directories go.
+    pub out_dir: String,
+    pub miic: MiicPlan,
+    /// Approach speed, nm/s of actuator travel.
+    pub approach_speed_nm_per_s: f64,
+}
+
+impl Default for RunPlan {
+    fn default() -> Self {
+        Self {
+            preload_nn: 5.0,
+            force_rms_nn: 1.0,
+            band_hz: [0.5, 2000.0],
+            duration_s: 2.0,
+            periods: 2,
+            order: 3,
+            max_iterations: 8,
+            rel_change_tol: 0.005,
+            exclude_mains_hz: 0.0,
+            reference: ReferenceMode::Measured,
+            out_dir: "runs".into(),
+            miic: MiicPlan::default(),
+            approach_speed_nm_per_s: 1000.0,
+        }
+    }
+}
+
+impl RunPlan {
+    /// Value checks, with key paths.
+    pub fn validate(&self) -> Vec<(String, String)> {
+        let mut v = Vec::new();
+        let mut pos = |k: &str, x: f64| {
+            if !(x.is_finite() && x > 0.0) {
+                v.push((format!("run.{k}"), format!("must be positive (got {x})")));
+            }
+        };
+        pos("preload_nn", self.preload_nn);
+        pos("force_rms_nn", self.force_rms_nn);
+        pos("duration_s", self.duration_s);
+        pos("rel_change_tol", self.rel_change_tol);
+        pos("approach_speed_nm_per_s", self.approach_speed_nm_per_s);
+        pos("miic.target_err2_pct", self.miic.target_err2_pct);
+        pos("miic.target_errinf_pct", self.miic.target_errinf_pct);
+        if !(self.band_hz[0] > 0.0 && self.band_hz[1] > self.band_hz[0]) {
+            v.push((
+                "run.band_hz".into(),
+                format!(
+                    "must be [low, high] with 0 < low < high (got {:?})",
+                    self.band_hz
+                ),
+            ));
+        }
+        if self.periods < 1 {
+            v.push(("run.periods".into(), "must be at least 1".into()));
+        }
+        if self.order < 1 || self.order > 6 {
+            v.push((
+                "run.order".into(),
+                format!("must be 1 to 6 Prony terms (got {})", self.order),
+            ));
+        }
+        if self.max_iterations < 1 {
+            v.push(("run.max_iterations".into(), "must be at least 1".into()));
+        }
+        if !(self.miic.relaxation > 0.0 && self.miic.relaxation <= 1.0) {
+            v.push((
+                "run.miic.relaxation".into(),
+                format!("must lie in (0, 1] (got {})", self.miic.relaxation),
+            ));
+        }
+        if self.force_rms_nn * 3.0 >= self.preload_nn {
+            v.push((
+                "run.force_rms_nn".into(),
+                format!(
+                    "3×force_rms ({:.2} nN) must stay below the preload ({} nN) or the tip loses contact",
+                    3.0 * self.force_rms_nn,
+                    self.preload_nn
+                ),
+            ));
+        }
+        v
+    }
+}
+
+/// How the hard-sample deflection is obtained.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ReferenceMode {
+    Measured,
+    Predicted,
+}
+
+/// `[run.miic]`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(default)]
+pub struct MiicPlan {
+    pub max_iterations: usize,
+    pub target_err2_pct: f64,
+    pub target_errinf_pct: f64,
+    pub relaxation: f64,
+    /// Cancel output lines the desired force does not have (contact and hysteresis harmonics).
+    pub cancel_harmonics: bool,
+}
+
+impl Default for MiicPlan {
+    fn default() -> Self {
+        Self {
+            max_iterations: 8,
+            target_err2_pct: 1.0,
+            target_errinf_pct: 3.0,
+            relaxation: 1.0,
+            cancel_harmonics: true,
+        }
+    }
+}
+
+/// `[safety]`: limits enforced below every controller.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(default)]
+pub struct SafetySection {
+    pub min_drive_v: f64,
+    pub max_drive_v: f64,
+    pub max_slew_v_per_s: f64,
+    pub max_force_nn: f64,
+    pub retract_drive_v: f64,
+}
+
+impl Default for SafetySection {
+    fn default() -> Self {
+        Self {
+            min_drive_v: -10.0,
+            max_drive_v: 10.0,
+            max_slew_v_per_s: 2.0e4,
+            max_force_nn: 40.0,
+            retract_drive_v: 0.0,
+        }
+    }
 }
 
 impl SimConfigFile {

@@ -3,5 +3,6 @@
 //! the science it prints comes from `viscoprobe_core`.
 pub mod cli;
 pub mod config;
+pub mod measure;
 pub mod output;
 pub mod simrun;

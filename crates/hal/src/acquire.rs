@@ -45,7 +45,19 @@ pub fn run_drive(
     inst: &mut dyn Instrument,
     drive: &[f64],
     block_len: usize,
+    on_block: impl FnMut(usize),
+) -> Result<Acquired, Box<PartialAcquisition>> {
+    run_drive_cancellable(inst, drive, block_len, on_block, &|| false)
+}
+
+/// [`run_drive`] that checks `cancel` before every block and stops with
+/// [`HalErrorKind::Cancelled`] (and the data so far) when it returns true.
+pub fn run_drive_cancellable(
+    inst: &mut dyn Instrument,
+    drive: &[f64],
+    block_len: usize,
     mut on_block: impl FnMut(usize),
+    cancel: &dyn Fn() -> bool,
 ) -> Result<Acquired, Box<PartialAcquisition>> {
     let mut acq = Acquired::default();
     let fail =
@@ -66,6 +78,13 @@ pub fn run_drive(
     let mut written = 0;
     let mut expected_seq = None;
     for b in 0..blocks {
+        if cancel() {
+            let _ = inst.stop();
+            return Err(fail(
+                HalError::new(HalErrorKind::Cancelled, "cancelled by the caller"),
+                acq,
+            ));
+        }
         while written < blocks && written < b + AHEAD_BLOCKS {
             if let Err(e) =
                 inst.write_drive(&padded[written * block_len..(written + 1) * block_len])

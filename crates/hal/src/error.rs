@@ -27,6 +27,8 @@ pub enum HalErrorKind {
     SafetyLimit,
     /// The call came in the wrong state (e.g. read before start).
     State,
+    /// The caller cancelled the operation (Ctrl-C, abort request).
+    Cancelled,
 }
 
 impl HalErrorKind {

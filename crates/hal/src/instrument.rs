@@ -113,3 +113,34 @@ pub trait Instrument {
         ))
     }
 }
+
+/// A boxed instrument is an instrument: lets the daemon pick the backend at run time.
+impl<T: Instrument + ?Sized> Instrument for Box<T> {
+    fn capabilities(&self) -> Capabilities {
+        (**self).capabilities()
+    }
+    fn configure(&mut self, cfg: &StreamConfig) -> Result<(), HalError> {
+        (**self).configure(cfg)
+    }
+    fn start(&mut self) -> Result<(), HalError> {
+        (**self).start()
+    }
+    fn write_drive(&mut self, samples: &[f64]) -> Result<(), HalError> {
+        (**self).write_drive(samples)
+    }
+    fn queued_drive(&self) -> usize {
+        (**self).queued_drive()
+    }
+    fn read_block(&mut self) -> Result<InputBlock, HalError> {
+        (**self).read_block()
+    }
+    fn stop(&mut self) -> Result<(), HalError> {
+        (**self).stop()
+    }
+    fn last_drive(&self) -> f64 {
+        (**self).last_drive()
+    }
+    fn select_sample(&mut self, slot: SampleSlot) -> Result<(), HalError> {
+        (**self).select_sample(slot)
+    }
+}

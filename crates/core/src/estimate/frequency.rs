@@ -260,6 +260,35 @@ fn neighbours_power(y: &[Complex64], excited: &[bool], k: usize, w: usize) -> f6
     }
 }
 
+/// Removes a linear drift from a record of `periods` whole periods: the slope is fitted to the
+/// period means (a periodic signal has the same mean in every period, so only drift moves
+/// them) and the line through them is subtracted. Thermal drift and actuator creep otherwise
+/// leak into the lowest lines as a 1/k skirt. With fewer than two periods the record is
+/// returned unchanged.
+pub fn remove_linear_drift(x: &[f64], periods: usize) -> Vec<f64> {
+    if periods < 2 || x.len() % periods != 0 {
+        return x.to_vec();
+    }
+    let np = x.len() / periods;
+    let means: Vec<f64> = x
+        .chunks(np)
+        .map(|c| c.iter().sum::<f64>() / np as f64)
+        .collect();
+    let pc = (periods as f64 - 1.0) / 2.0;
+    let num: f64 = means
+        .iter()
+        .enumerate()
+        .map(|(p, m)| (p as f64 - pc) * m)
+        .sum();
+    let den: f64 = (0..periods).map(|p| (p as f64 - pc).powi(2)).sum();
+    let slope_per_sample = num / den / np as f64;
+    let centre = (x.len() as f64 - 1.0) / 2.0;
+    x.iter()
+        .enumerate()
+        .map(|(i, v)| v - slope_per_sample * (i as f64 - centre))
+        .collect()
+}
+
 /// Pools the excited lines of several records of the same material (e.g. the successive
 /// iterations of a design loop) into one set, so that one fit uses all the information
 /// gathered so far. Each line keeps its own record's noise. `None` for an empty slice or

@@ -1,0 +1,678 @@
+//! The closed-loop measurement of the paper, on any backend: calibrate on the hard reference,
+//! approach the sample, then iterate design → track the desired force with MIIC → acquire →
+//! estimate → redesign until the compliance converges, and retract.
+//!
+//! [`run_measurement`] drives a [`session::Session`]; every acquisition is written to the run
+//! directory as soon as it is measured, so an abort (Ctrl-C, a fault) loses nothing that was
+//! measured. The science (MIIC, design, estimation) is `viscoprobe_core`'s; this module only
+//! sequences it and keeps the records.
+
+pub mod plots;
+pub mod report;
+pub mod session;
+
+use crate::config::{ReferenceMode, SimConfigFile};
+use anyhow::{bail, Context};
+use report::{IterationRecord, MiicRecord, RunReport};
+use rustfft::num_complex::Complex64;
+use serde::Serialize;
+use session::{Approach, Session};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+use viscoprobe_core::design::{
+    synth::synthesize_lines, DesignConfig, DesignLine, DesignLoop, Exclusions, Level, LoopConfig,
+    LoopStep, MainsExclusion, SynthConfig,
+};
+use viscoprobe_core::discrete::Sampling;
+use viscoprobe_core::estimate::frequency::{
+    fit_spectra, periodic_spectra, pool_spectra, remove_linear_drift, FrequencyFitOptions,
+    PeriodicSpectra,
+};
+use viscoprobe_core::estimate::Estimate;
+use viscoprobe_core::miic::{miic_step_with_plant, spectrum, tracking_error, MiicConfig};
+use viscoprobe_core::prony::PronySeries;
+use viscoprobe_core::recording::{
+    Cantilever, Drive, Piezo, Recording, Sample, Sidecar, Tip, FORMAT,
+};
+use viscoprobe_core::twin::{SampleSlot, TipConfig};
+use viscoprobe_hal::sim::{Pacing, SimulatedSpm};
+use viscoprobe_hal::{ForceCalibration, Guarded, Instrument, SafetyLimits, StreamConfig};
+
+/// Progress of a run, for terminals and logs.
+#[derive(Debug, Clone, Serialize)]
+#[serde(tag = "event", rename_all = "snake_case")]
+pub enum Event {
+    Stage {
+        message: String,
+    },
+    Miic {
+        iteration: usize,
+        step: usize,
+        err2_pct: f64,
+        errinf_pct: f64,
+        lines: usize,
+    },
+    Estimate {
+        iteration: usize,
+        params: Vec<f64>,
+        rel_change: Option<f64>,
+        lines: Vec<f64>,
+    },
+}
+
+/// The periodic measurement of one design iteration.
+pub struct Played {
+    pub drive: Vec<f64>,
+    pub deflection: Vec<f64>,
+    /// Index of the first recorded (post-warm-up) sample.
+    pub start: usize,
+}
+
+/// Initial design F0: 2n + 2 lines log-spaced over the band on the period's grid, equal power.
+/// (The paper's {1, 10, 30, 60} Hz cannot see a retardation time faster than ~2 ms; with
+/// nothing known yet, spanning the band is what keeps the first estimate identifiable.)
+fn initial_lines(order: usize, band: [f64; 2], grid_hz: f64, fs: f64) -> Vec<DesignLine> {
+    let lo = band[0].max(grid_hz);
+    let hi = band[1].min(0.45 * fs);
+    let m = 2 * order + 2;
+    let mut f: Vec<f64> = (0..m)
+        .map(|i| {
+            ((lo * (hi / lo).powf(i as f64 / (m - 1) as f64)) / grid_hz)
+                .round()
+                .max(1.0)
+                * grid_hz
+        })
+        .collect();
+    f.dedup();
+    let n = f.len() as f64;
+    f.into_iter()
+        .map(|freq_hz| DesignLine {
+            freq_hz,
+            power_frac: 1.0 / n,
+        })
+        .collect()
+}
+
+/// Runs the whole measurement into `dir` (created by the caller). `config_text` is the
+/// configuration as read, kept as a snapshot.
+pub fn run_measurement(
+    cfg: &SimConfigFile,
+    config_text: &str,
+    dir: &Path,
+    cancel: &AtomicBool,
+    on_event: &mut dyn FnMut(&Event),
+) -> anyhow::Result<RunReport> {
+    let started = std::time::Instant::now();
+    let fs = cfg.instrument.sample_rate_hz;
+    let block = cfg.instrument.block_len;
+    std::fs::write(dir.join("config.toml"), config_text)
+        .context("writing the configuration snapshot")?;
+    let t = &cfg.twin;
+    let k = t.cantilever.spring_constant_n_per_m;
+    let c_nm = t.cantilever.deflection_sensitivity_nm_per_v;
+    let pacing = match cfg.instrument.pacing {
+        crate::config::PacingName::Simulated => Pacing::Simulated,
+        crate::config::PacingName::WallClock => Pacing::WallClock,
+    };
+    let backend: Box<dyn Instrument> = Box::new(SimulatedSpm::new(t.clone(), pacing));
+    let sf = &cfg.safety;
+    let limits = SafetyLimits {
+        min_drive_v: sf.min_drive_v,
+        max_drive_v: sf.max_drive_v,
+        max_slew_v_per_s: sf.max_slew_v_per_s,
+        max_force_n: sf.max_force_nn * 1e-9,
+        retract_drive_v: sf.retract_drive_v,
+        force: ForceCalibration {
+            spring_constant_n_per_m: k,
+            deflection_sensitivity_nm_per_v: c_nm,
+            channel: 0,
+            zero_v: 0.0,
+        },
+    };
+    let mut s = Session {
+        inst: Guarded::new(backend, limits),
+        fs_hz: fs,
+        block_len: block,
+        cancel,
+        piezo_gain_nm_per_v: t.actuator.gain_nm_per_v,
+        spring_constant_n_per_m: k,
+        sensitivity_nm_per_v: c_nm,
+        streamed_s: 0.0,
+    };
+    s.inst.configure(&StreamConfig {
+        sample_rate_hz: fs,
+        block_len: block,
+    })?;
+    let mut report = RunReport::new(cfg, dir);
+    let result = run_inner(cfg, &mut s, dir, &mut report, on_event);
+    // Whatever happened: retract, and write what we have.
+    let retract = s.inst.retract();
+    report.retracted = retract.is_ok();
+    report.measurement_time_s = s.streamed_s;
+    report.wall_time_s = started.elapsed().as_secs_f64();
+    report.safety = s.inst.stats();
+    if let Err(e) = &result {
+        report.status = if cancel.load(std::sync::atomic::Ordering::Relaxed) {
+            "aborted".into()
+        } else {
+            "failed".into()
+        };
+        report.error = Some(format!("{e:#}"));
+    }
+    report.finish(cfg);
+    report.write(dir)?;
+    if let Err(e) = plots::write_all(dir, &report) {
+        report.warnings.push(format!("plots not written: {e:#}"));
+        report.write(dir)?;
+    }
+    result.map(|_| report)
+}
+
+fn run_inner(
+    cfg: &SimConfigFile,
+    s: &mut Session,
+    dir: &Path,
+    report: &mut RunReport,
+    on_event: &mut dyn FnMut(&Event),
+) -> anyhow::Result<()> {
+    let plan = &cfg.run;
+    let fs = s.fs_hz;
+    let t = &cfg.twin;
+    let k = t.cantilever.spring_constant_n_per_m;
+    let c_nm = t.cantilever.deflection_sensitivity_nm_per_v;
+    let volts_per_newton = 1.0 / (k * c_nm * 1e-9);
+    let move_speed = 4.0 * plan.approach_speed_nm_per_s / t.actuator.gain_nm_per_v.abs();
+    let preload_n = plan.preload_nn * 1e-9;
+
+    // 1. Calibration on the hard reference.
+    on_event(&Event::Stage {
+        message: "calibrating on the hard reference".into(),
+    });
+    s.inst.select_sample(SampleSlot::Reference)?;
+    let ref_app = s.approach(preload_n, plan.approach_speed_nm_per_s)?;
+    let expected_slope = t.actuator.gain_nm_per_v / c_nm;
+    report.calibration.reference = Some(ref_app);
+    report.calibration.sensitivity_ratio = ref_app.slope_v_per_v / expected_slope;
+    if (report.calibration.sensitivity_ratio - 1.0).abs() > 0.1 {
+        report.warnings.push(format!(
+            "deflection sensitivity check: the hard-reference slope is {:.3} of the nominal piezo gain / sensitivity; \
+             recalibrate the sensitivity",
+            report.calibration.sensitivity_ratio
+        ));
+    }
+    s.switch_to(SampleSlot::Soft, move_speed)?;
+
+    // 2. Approach the sample and settle at the preload.
+    on_event(&Event::Stage {
+        message: format!("approaching the sample to {} nN", plan.preload_nn),
+    });
+    let app: Approach = s.approach(preload_n, plan.approach_speed_nm_per_s)?;
+    s.inst.set_force_zero(app.baseline_v);
+    s.move_to(app.target_drive_v, move_speed, 0.3)?;
+    report.calibration.sample = Some(app);
+
+    // The drive → deflection response in contact, broadband and small: MIIC's first drives
+    // of every design go through it, so a line near a scanner resonance starts sensibly.
+    on_event(&Event::Stage {
+        message: "measuring the drive → deflection response in contact".into(),
+    });
+    let np_cal = (plan.duration_s / plan.periods as f64 * fs).round() as usize;
+    let cal_lines: Vec<DesignLine> = {
+        let (lo, hi) = (plan.band_hz[0].max(1.0), plan.band_hz[1].min(0.45 * fs));
+        let grid = fs / np_cal as f64;
+        let mut f: Vec<f64> = (0..60)
+            .map(|i| ((lo * (hi / lo).powf(i as f64 / 59.0)) / grid).round() * grid)
+            .collect();
+        f.dedup();
+        f.into_iter()
+            .filter(|x| *x > 0.0)
+            .map(|freq_hz| DesignLine {
+                freq_hz,
+                power_frac: 1.0,
+            })
+            .collect()
+    };
+    let cal = synthesize_lines(
+        &cal_lines,
+        fs,
+        np_cal as f64 / fs,
+        1,
+        &SynthConfig {
+            level: Level::Rms(1.0),
+            ..SynthConfig::default()
+        },
+    )?;
+    // 0.3 of the planned force rms, through the static slope.
+    let cal_rms_v = 0.3 * plan.force_rms_nn * 1e-9 * volts_per_newton / app.slope_v_per_v.max(1e-9);
+    let cal_drive: Vec<f64> = cal
+        .samples
+        .iter()
+        .map(|x| app.target_drive_v + x * cal_rms_v)
+        .collect();
+    let cal_played = play(s, &cal_drive, 1)?;
+    let mut plant = learn_plant(
+        &cal_drive,
+        &cal_played.deflection[cal_played.start..],
+        &cal_drive,
+        fs,
+    );
+    report.calibration.sample_response =
+        plant.iter().map(|(f, g)| (*f, g.norm(), g.arg())).collect();
+
+    // 3. Design iterations.
+    let np = (plan.duration_s / plan.periods as f64 * fs).round() as usize;
+    let period_s = np as f64 / fs;
+    let sampling = Sampling::FirstOrderHold { fs_hz: fs };
+    let mut design_cfg = DesignConfig::new((plan.band_hz[0], plan.band_hz[1]));
+    design_cfg.fs_hz = fs;
+    design_cfg.sampling = sampling;
+    design_cfg.duration_s = period_s * plan.periods as f64;
+    design_cfg.periods = plan.periods;
+    if plan.exclude_mains_hz > 0.0 {
+        design_cfg.exclusions = Exclusions {
+            mains: Some(MainsExclusion {
+                fundamental_hz: plan.exclude_mains_hz,
+                half_width_hz: 1.0,
+            }),
+            bands: vec![],
+        };
+    }
+    design_cfg.initial = initial_lines(plan.order, plan.band_hz, 1.0 / period_s, fs);
+    let synth = SynthConfig {
+        level: Level::Rms(1.0),
+        ..SynthConfig::default()
+    };
+    let mut fit_opts = FrequencyFitOptions::new(plan.order, fs, plan.periods);
+    fit_opts.sampling = sampling;
+    let mut pooled: Vec<PeriodicSpectra> = Vec::new();
+    let mut design_loop: Option<DesignLoop> = None;
+    let mut drive_dc = app.target_drive_v;
+    for iteration in 1..=plan.max_iterations {
+        let lines: Vec<DesignLine> = match design_loop.as_mut() {
+            None => design_cfg.initial.clone(),
+            Some(l) => l.next_excitation()?.design.lines.clone(),
+        };
+        let shape = synthesize_lines(&lines, fs, period_s, 1, &synth)?;
+        let mean = shape.samples.iter().sum::<f64>() / np as f64;
+        let rms = shape.rms.max(1e-300);
+        let force: Vec<f64> = shape
+            .samples
+            .iter()
+            .map(|x| preload_n + (x - mean) / rms * plan.force_rms_nn * 1e-9)
+            .collect();
+        let desired: Vec<f64> = force
+            .iter()
+            .map(|f| app.baseline_v + f * volts_per_newton)
+            .collect();
+        on_event(&Event::Stage {
+            message: format!(
+                "iteration {iteration}: {} lines ({}) Hz",
+                lines.len(),
+                lines
+                    .iter()
+                    .map(|l| format!("{}", l.freq_hz))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+        });
+
+        // MIIC: start from the plant learned so far (or the static slope), then iterate.
+        let mut drive = initial_drive(&desired, drive_dc, app.slope_v_per_v, &plant, fs);
+        let mut miic_cfg = MiicConfig {
+            relaxation: plan.miic.relaxation,
+            ..MiicConfig::default()
+        };
+        if !plan.miic.cancel_harmonics {
+            miic_cfg.cancel_threshold = f64::INFINITY;
+        }
+        let mut miic_log = Vec::new();
+        let mut played;
+        let mut step = 0;
+        loop {
+            step += 1;
+            played = play(s, &drive, plan.periods)?;
+            let recorded = remove_linear_drift(&played.deflection[played.start..], plan.periods);
+            let (avg, noise) = period_average(&recorded, np, plan.periods);
+            let err = tracking_error(&desired, &avg);
+            let n_lines = lines.len();
+            on_event(&Event::Miic {
+                iteration,
+                step,
+                err2_pct: err.err2_pct,
+                errinf_pct: err.errinf_pct,
+                lines: n_lines,
+            });
+            miic_log.push(MiicRecord {
+                step,
+                err2_pct: err.err2_pct,
+                errinf_pct: err.errinf_pct,
+            });
+            let done = err.err2_pct < plan.miic.target_err2_pct
+                && err.errinf_pct < plan.miic.target_errinf_pct;
+            // Stalled at the noise/nonlinearity floor: two steps without a 5 % gain.
+            let stalled = miic_log.len() >= 3 && {
+                let e = |i: usize| miic_log[miic_log.len() - i].err2_pct;
+                e(1) > 0.95 * e(3) && e(2) > 0.95 * e(3)
+            };
+            if done || stalled || step >= plan.miic.max_iterations {
+                plant = merge_plant(&plant, &learn_plant(&drive, &avg, &desired, fs));
+                break;
+            }
+            let dense = merge_plant(&plant, &learn_plant(&drive, &avg, &desired, fs));
+            let lookup = |k: usize| interpolate(&dense, k as f64 * fs / np as f64);
+            drive = miic_step_with_plant(
+                &drive,
+                &desired,
+                &avg,
+                &noise,
+                app.slope_v_per_v,
+                &miic_cfg,
+                Some(&lookup),
+            )
+            .drive;
+        }
+        drive_dc = drive.iter().sum::<f64>() / np as f64;
+
+        // The hard-sample deflection for the same drive.
+        let reference = match plan.reference {
+            ReferenceMode::Measured => {
+                s.switch_to(SampleSlot::Reference, move_speed)?;
+                // Let actuator creep settle as it had on the sample before playing.
+                s.move_to(drive[0], move_speed, 2.0)?;
+                let r = play(s, &drive, plan.periods)?;
+                s.switch_to(SampleSlot::Soft, move_speed)?;
+                s.move_to(drive[0], move_speed, 0.3)?;
+                r
+            }
+            ReferenceMode::Predicted => {
+                bail!("run.reference = \"predicted\" is not implemented yet; use \"measured\"")
+            }
+        };
+
+        // Record the acquisition (warm-up included) before anything else can fail.
+        let rec = recording(cfg, &played, &reference.deflection[reference.start - np..]);
+        let stem = dir.join(format!("iter-{iteration:02}"));
+        crate::cli::simulate::write_atomic(
+            &stem.with_extension("csv"),
+            &stem.with_extension("toml"),
+            &rec,
+        )?;
+
+        // Force and indentation over the recorded periods → u, y → estimate (pooled).
+        let contact = cfg.twin.contact();
+        let w = played.start..played.start + np * plan.periods;
+        let u: Vec<f64> = played.deflection[w.clone()]
+            .iter()
+            .map(|d| contact.u_from_force((d - app.baseline_v) / volts_per_newton))
+            .collect();
+        let y: Vec<f64> = w
+            .clone()
+            .map(|i| {
+                let r = reference.deflection[i - played.start + reference.start];
+                contact.y_from_indentation(c_nm * 1e-9 * (r - played.deflection[i]))
+            })
+            .collect();
+        // Drift and creep move the period means; remove the line through them first.
+        let (u, y) = (
+            remove_linear_drift(&u, plan.periods),
+            remove_linear_drift(&y, plan.periods),
+        );
+        let spectra = periodic_spectra(
+            &u,
+            &y,
+            fs,
+            plan.periods,
+            &fit_opts.lines,
+            fit_opts.noise_smoothing_bins,
+        )?;
+        pooled.push(spectra);
+        let est: Estimate = fit_spectra(&pool_spectra(&pooled).expect("same rate"), &fit_opts)
+            .with_context(|| format!("estimation in iteration {iteration}"))?;
+        let rel_change = match design_loop.as_mut() {
+            None => {
+                let mut lc = LoopConfig::new(design_cfg.clone(), synth);
+                lc.rel_change_tol = plan.rel_change_tol;
+                lc.max_iterations = plan.max_iterations;
+                design_loop = Some(DesignLoop::new(est.model.clone(), lc)?);
+                None
+            }
+            Some(l) => Some(l.feed(est.model.clone())?),
+        };
+        let last = miic_log.last().copied().expect("at least one MIIC step");
+        on_event(&Event::Estimate {
+            iteration,
+            params: est.values(),
+            rel_change: rel_change.map(|r| r.rel_change()),
+            lines: lines.iter().map(|l| l.freq_hz).collect(),
+        });
+        report.iterations.push(IterationRecord::new(
+            iteration,
+            &lines,
+            &est,
+            rel_change.map(|r| r.rel_change()),
+            last,
+            miic_log,
+            &desired,
+            &played,
+            np,
+            plan.periods,
+        ));
+        report.write(dir)?;
+        if matches!(rel_change, Some(LoopStep::Converged { .. })) {
+            report.converged = true;
+            break;
+        }
+    }
+    Ok(())
+}
+
+/// Plays `drive` (one period) for one warm-up period and `periods` recorded ones.
+fn play(s: &mut Session, drive: &[f64], periods: usize) -> anyhow::Result<Played> {
+    let np = drive.len();
+    let mut seq = s.ramp(drive[0], s.inst.limits().max_slew_v_per_s / 4.0, 0.0);
+    let lead = seq.len();
+    seq.extend(drive.iter().cycle().take(np * (periods + 1)));
+    let acq = s.stream(&seq)?;
+    Ok(Played {
+        drive: acq.drive_v,
+        deflection: acq.channels[0].clone(),
+        start: lead + np,
+    })
+}
+
+/// Mean of the periods and, per DFT bin, the standard deviation of that mean's spectrum.
+fn period_average(x: &[f64], np: usize, periods: usize) -> (Vec<f64>, Vec<f64>) {
+    let mut avg = vec![0.0; np];
+    for p in 0..periods {
+        for i in 0..np {
+            avg[i] += x[p * np + i] / periods as f64;
+        }
+    }
+    let mean_spec = spectrum(&avg);
+    let mut var = vec![0.0; np];
+    if periods >= 2 {
+        for p in 0..periods {
+            let sp = spectrum(&x[p * np..(p + 1) * np]);
+            for i in 0..np {
+                var[i] += (sp[i] - mean_spec[i]).norm_sqr() / ((periods - 1) * periods) as f64;
+            }
+        }
+    }
+    // Smooth over ±8 bins: single-bin scatter from two periods is too noisy to threshold on.
+    let sm: Vec<f64> = (0..np)
+        .map(|i| {
+            let lo = i.saturating_sub(8);
+            let hi = (i + 9).min(np);
+            (var[lo..hi].iter().sum::<f64>() / (hi - lo) as f64).sqrt()
+        })
+        .collect();
+    (avg, sm)
+}
+
+/// The drive → deflection response on the lines the drive excites.
+/// Only the lines that carry the desired output count: lines driven to cancel a harmonic
+/// do not tell the plant.
+fn learn_plant(drive: &[f64], out: &[f64], desired: &[f64], fs: f64) -> Vec<(f64, Complex64)> {
+    let n = drive.len();
+    let u = spectrum(drive);
+    let y = spectrum(out);
+    let yd = spectrum(desired);
+    let max = (1..n / 2).map(|k| yd[k].norm()).fold(0.0, f64::max);
+    (1..n / 2)
+        .filter(|&k| yd[k].norm() > 1e-3 * max && u[k].norm() > 0.0)
+        .map(|k| (k as f64 * fs / n as f64, y[k] / u[k]))
+        .collect()
+}
+
+/// The calibrated response with the lines measured since replacing their neighbours.
+fn merge_plant(old: &[(f64, Complex64)], new: &[(f64, Complex64)]) -> Vec<(f64, Complex64)> {
+    let mut all: Vec<(f64, Complex64)> = old
+        .iter()
+        .filter(|(f, _)| !new.iter().any(|(g, _)| (f / g).ln().abs() < 0.02))
+        .chain(new.iter())
+        .copied()
+        .collect();
+    all.sort_by(|a, b| a.0.total_cmp(&b.0));
+    all
+}
+
+/// First drive of a design: each line through the plant learned so far (interpolated in
+/// log-frequency), or through the static slope where nothing is known yet.
+fn initial_drive(
+    desired: &[f64],
+    dc: f64,
+    slope: f64,
+    plant: &[(f64, Complex64)],
+    fs: f64,
+) -> Vec<f64> {
+    let n = desired.len();
+    let mut d = spectrum(desired);
+    for kk in 1..n.div_ceil(2) {
+        let f = kk as f64 * fs / n as f64;
+        let g = interpolate(plant, f).unwrap_or(Complex64::new(slope, 0.0));
+        d[kk] /= g;
+        d[n - kk] = d[kk].conj();
+    }
+    if n % 2 == 0 {
+        d[n / 2] = Complex64::new(0.0, 0.0);
+    }
+    d[0] = Complex64::new(dc * n as f64, 0.0);
+    viscoprobe_core::miic::inverse_spectrum(&d)
+}
+
+fn interpolate(p: &[(f64, Complex64)], f: f64) -> Option<Complex64> {
+    if p.is_empty() {
+        return None;
+    }
+    if f <= p[0].0 {
+        return Some(p[0].1);
+    }
+    if f >= p[p.len() - 1].0 {
+        return Some(p[p.len() - 1].1);
+    }
+    let i = p.partition_point(|q| q.0 < f);
+    let (f0, g0) = p[i - 1];
+    let (f1, g1) = p[i];
+    let w = (f.ln() - f0.ln()) / (f1.ln() - f0.ln());
+    Some(g0 * (1.0 - w) + g1 * w)
+}
+
+/// An iteration's acquisition as a spec recording, with the twin as truth.
+/// The warm-up period and the recorded ones (the lead-in ramp is dropped).
+fn recording(cfg: &SimConfigFile, played: &Played, reference: &[f64]) -> Recording {
+    let fs = cfg.instrument.sample_rate_hz;
+    let np_all = reference.len();
+    let from = played.drive.len() - np_all;
+    let played = Played {
+        drive: played.drive[from..].to_vec(),
+        deflection: played.deflection[from..].to_vec(),
+        start: 0,
+    };
+    let t = &cfg.twin;
+    let tip = match t.tip {
+        TipConfig::Sphere { radius_nm } => Tip::Sphere { radius_nm },
+        TipConfig::Cone { half_angle_deg } => Tip::Cone { half_angle_deg },
+    };
+    let mut truth = toml::Table::new();
+    if let Ok(v) = toml::Value::try_from(t) {
+        truth.insert("twin".into(), v);
+    }
+    Recording {
+        sample_rate_hz: fs,
+        time_s: (0..played.drive.len()).map(|k| k as f64 / fs).collect(),
+        drive: Drive::Volts(played.drive.clone()),
+        deflection_v: played.deflection.clone(),
+        reference_deflection_v: Some(reference.to_vec()),
+        measured_height_nm: None,
+        extra_columns: vec![],
+        meta: Sidecar {
+            format: FORMAT.into(),
+            sample_rate_hz: fs,
+            cantilever: Cantilever {
+                spring_constant_n_per_m: t.cantilever.spring_constant_n_per_m,
+                deflection_sensitivity_nm_per_v: t.cantilever.deflection_sensitivity_nm_per_v,
+            },
+            tip,
+            piezo: Some(Piezo {
+                gain_nm_per_v: t.actuator.gain_nm_per_v,
+            }),
+            sample: Sample {
+                name: t.sample.name.clone(),
+                poisson_ratio: t.sample.poisson_ratio,
+            },
+            notes: None,
+            truth: Some(truth),
+        },
+        warnings: vec![],
+    }
+}
+
+/// A fresh run directory under `root`: `<UTC timestamp>-<config stem>`.
+pub fn new_run_dir(root: &Path, config: &Path) -> anyhow::Result<PathBuf> {
+    let stem = config.file_stem().and_then(|s| s.to_str()).unwrap_or("run");
+    let secs = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_secs())
+        .unwrap_or(0);
+    let base = format!("{}-{stem}", utc_stamp(secs));
+    for n in 0..1000 {
+        let name = if n == 0 {
+            base.clone()
+        } else {
+            format!("{base}-{n}")
+        };
+        let dir = root.join(name);
+        if std::fs::create_dir_all(root).is_ok() && std::fs::create_dir(&dir).is_ok() {
+            return Ok(dir);
+        }
+    }
+    bail!("cannot create a run directory under {}", root.display())
+}
+
+/// `YYYYMMDD-HHMMSS` in UTC, from seconds since the epoch (no time-zone database needed).
+fn utc_stamp(secs: u64) -> String {
+    let days = secs / 86_400;
+    let rem = secs % 86_400;
+    // Civil-from-days (Howard Hinnant's algorithm).
+    let z = days as i64 + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let y = yoe + era * 400;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = if m <= 2 { y + 1 } else { y };
+    format!(
+        "{y:04}{m:02}{d:02}-{:02}{:02}{:02}",
+        rem / 3600,
+        rem % 3600 / 60,
+        rem % 60
+    )
+}
+
+/// The truth of a simulated run, when there is one.
+pub fn truth_of(cfg: &SimConfigFile) -> PronySeries {
+    cfg.twin.sample.material.clone()
+}

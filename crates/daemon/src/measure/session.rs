@@ -1,0 +1,175 @@
+//! Instrument operations of a measurement: streaming drive sequences, ramps, approach,
+//! stage switches and the hard-reference calibration. Blocking; cancellable between blocks.
+
+use anyhow::{anyhow, bail};
+use std::sync::atomic::{AtomicBool, Ordering};
+use viscoprobe_hal::acquire::{run_drive_cancellable, Acquired};
+use viscoprobe_hal::{Guarded, Instrument, SampleSlot};
+
+/// The instrument of a run behind its safety layer, with what the run learned about it.
+pub struct Session<'a> {
+    pub inst: Guarded<Box<dyn Instrument>>,
+    pub fs_hz: f64,
+    pub block_len: usize,
+    pub cancel: &'a AtomicBool,
+    /// Nominal piezo gain, nm/V (to turn approach speeds into drive slopes).
+    pub piezo_gain_nm_per_v: f64,
+    /// Spring constant (N/m) and deflection sensitivity (nm/V) of the calibration.
+    pub spring_constant_n_per_m: f64,
+    pub sensitivity_nm_per_v: f64,
+    /// Simulated seconds streamed so far (all slots, ramps included).
+    pub streamed_s: f64,
+}
+
+/// What an approach found.
+#[derive(Debug, Clone, Copy, serde::Serialize)]
+pub struct Approach {
+    /// Free-lever deflection before contact, V.
+    pub baseline_v: f64,
+    /// Drive at first contact (in-contact line extrapolated to the baseline), V.
+    pub contact_drive_v: f64,
+    /// Drive at which the target force was reached, V.
+    pub target_drive_v: f64,
+    /// Slope of deflection vs drive in contact near the target, V/V.
+    pub slope_v_per_v: f64,
+}
+
+impl Session<'_> {
+    fn cancelled(&self) -> bool {
+        self.cancel.load(Ordering::Relaxed)
+    }
+
+    /// Streams `drive` and returns the inputs. On failure the partial data are dropped here
+    /// (callers persist what they need before the next call).
+    pub fn stream(&mut self, drive: &[f64]) -> anyhow::Result<Acquired> {
+        let cancel = self.cancel;
+        let res = run_drive_cancellable(&mut self.inst, drive, self.block_len, |_| {}, &|| {
+            cancel.load(Ordering::Relaxed)
+        });
+        self.streamed_s += drive.len() as f64 / self.fs_hz;
+        res.map_err(|p| {
+            anyhow!(p.error).context(format!(
+                "after {} samples of a {}-sample drive",
+                p.acquired.len(),
+                drive.len()
+            ))
+        })
+    }
+
+    /// A straight ramp from the present drive to `to_v` at `v_per_s`, then `hold_s` at `to_v`.
+    pub fn ramp(&self, to_v: f64, v_per_s: f64, hold_s: f64) -> Vec<f64> {
+        let from = self.inst.last_drive();
+        let n = (((to_v - from).abs() / v_per_s) * self.fs_hz)
+            .ceil()
+            .max(1.0) as usize;
+        let mut d: Vec<f64> = (1..=n)
+            .map(|k| from + (to_v - from) * k as f64 / n as f64)
+            .collect();
+        d.extend(std::iter::repeat_n(
+            to_v,
+            (hold_s * self.fs_hz).round() as usize,
+        ));
+        d
+    }
+
+    /// Ramps and holds, discarding the inputs.
+    pub fn move_to(&mut self, to_v: f64, v_per_s: f64, hold_s: f64) -> anyhow::Result<()> {
+        let d = self.ramp(to_v, v_per_s, hold_s);
+        self.stream(&d).map(|_| ())
+    }
+
+    /// Retracts to the safety layer's retract voltage and moves `slot` under the tip.
+    pub fn switch_to(&mut self, slot: SampleSlot, v_per_s: f64) -> anyhow::Result<()> {
+        let retract = self.inst.limits().retract_drive_v;
+        self.move_to(retract, v_per_s, 0.0)?;
+        self.inst.select_sample(slot)?;
+        Ok(())
+    }
+
+    fn force_n(&self, defl_v: f64, baseline_v: f64) -> f64 {
+        self.spring_constant_n_per_m * self.sensitivity_nm_per_v * 1e-9 * (defl_v - baseline_v)
+    }
+
+    /// Finds contact and stops at `target_force_n`, ramping at `speed_nm_per_s` of actuator
+    /// travel from the present (retracted) drive. Bounded: it gives up at the drive range's end.
+    pub fn approach(
+        &mut self,
+        target_force_n: f64,
+        speed_nm_per_s: f64,
+    ) -> anyhow::Result<Approach> {
+        // Baseline: 50 ms at rest.
+        let here = self.inst.last_drive();
+        let rest = self.stream(&vec![here; (0.05 * self.fs_hz) as usize])?;
+        let baseline_v = rest.channels[0].iter().sum::<f64>() / rest.channels[0].len() as f64;
+        let v_per_s = speed_nm_per_s / self.piezo_gain_nm_per_v.abs();
+        // Short chunks: the force is checked after each, so the overshoot stays below one
+        // chunk of travel (and the safety layer's force limit sits below that anyway).
+        let chunk = self.block_len.clamp(1, (0.02 * self.fs_hz) as usize + 1);
+        let step = v_per_s / self.fs_hz;
+        let max_v = self.inst.limits().max_drive_v;
+        let mut v = here;
+        let (mut drives, mut forces) = (Vec::new(), Vec::new());
+        loop {
+            if self.cancelled() {
+                bail!("cancelled during approach");
+            }
+            if v >= max_v {
+                bail!("no contact: reached the drive limit {max_v} V without the force reaching {:.2} nN", target_force_n * 1e9);
+            }
+            let seq: Vec<f64> = (1..=chunk)
+                .map(|k| (v + step * k as f64).min(max_v))
+                .collect();
+            v = *seq.last().expect("non-empty");
+            let acq = self.stream(&seq)?;
+            // A moving average over 16 samples keeps the noise from faking contact.
+            let f: Vec<f64> = acq.channels[0]
+                .iter()
+                .map(|&d| self.force_n(d, baseline_v))
+                .collect();
+            for (i, &dv) in acq.drive_v.iter().enumerate() {
+                let lo = i.saturating_sub(15);
+                let avg = f[lo..=i].iter().sum::<f64>() / (i - lo + 1) as f64;
+                drives.push(dv);
+                forces.push(avg);
+            }
+            if let Some(i) = forces.iter().position(|&f| f >= target_force_n) {
+                drives.truncate(i + 1);
+                forces.truncate(i + 1);
+                break;
+            }
+        }
+        let target_drive_v = *drives.last().expect("streamed");
+        // In-contact line: samples between 30 % and 100 % of the target force.
+        let pts: Vec<(f64, f64)> = drives
+            .iter()
+            .zip(&forces)
+            .filter(|(_, f)| **f >= 0.3 * target_force_n)
+            .map(|(d, f)| (*d, *f))
+            .collect();
+        let (slope_f, icpt) = line_fit(&pts);
+        let k = self.spring_constant_n_per_m * self.sensitivity_nm_per_v * 1e-9;
+        let slope_v_per_v = slope_f / k;
+        let contact_drive_v = if slope_f > 0.0 {
+            -icpt / slope_f
+        } else {
+            target_drive_v
+        };
+        Ok(Approach {
+            baseline_v,
+            contact_drive_v,
+            target_drive_v,
+            slope_v_per_v,
+        })
+    }
+}
+
+/// Least-squares line `y = a·x + b` through points; returns (a, b).
+pub fn line_fit(p: &[(f64, f64)]) -> (f64, f64) {
+    let n = p.len().max(1) as f64;
+    let mx = p.iter().map(|q| q.0).sum::<f64>() / n;
+    let my = p.iter().map(|q| q.1).sum::<f64>() / n;
+    let sxy: f64 = p.iter().map(|q| (q.0 - mx) * (q.1 - my)).sum();
+    let sxx: f64 = p.iter().map(|q| (q.0 - mx) * (q.0 - mx)).sum();
+    let a = if sxx > 0.0 { sxy / sxx } else { 0.0 };
+    (a, my - a * mx)
+}
