@@ -51,21 +51,27 @@ impl Default for MiicConfig {
 }
 
 /// Tracking errors of one period, in percent of the desired signal's AC part.
+///
+/// The excitation is judged on its shape: the error's own mean (a preload offset, which
+/// drift moves between steps) is reported separately as `mean_error`, in the signal's units.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct TrackingError {
-    /// `‖y − y_d‖₂ / ‖y_d − mean(y_d)‖₂`, %.
+    /// `‖e − mean(e)‖₂ / ‖y_d − mean(y_d)‖₂`, %, with `e = y − y_d`.
     pub err2_pct: f64,
-    /// `max|y − y_d| / max|y_d − mean(y_d)|`, %.
+    /// `max|e − mean(e)| / max|y_d − mean(y_d)|`, %.
     pub errinf_pct: f64,
+    /// `mean(e)`: the offset of the mean (preload) from the desired one.
+    pub mean_error: f64,
 }
 
 /// Tracking error of `measured` against `desired` (same length, one or more periods).
 pub fn tracking_error(desired: &[f64], measured: &[f64]) -> TrackingError {
     let n = desired.len().min(measured.len()).max(1);
     let mean = desired[..n].iter().sum::<f64>() / n as f64;
+    let mean_error = (0..n).map(|i| measured[i] - desired[i]).sum::<f64>() / n as f64;
     let (mut e2, mut d2, mut emax, mut dmax) = (0.0, 0.0, 0.0f64, 0.0f64);
     for i in 0..n {
-        let e = measured[i] - desired[i];
+        let e = measured[i] - desired[i] - mean_error;
         let d = desired[i] - mean;
         e2 += e * e;
         d2 += d * d;
@@ -75,6 +81,7 @@ pub fn tracking_error(desired: &[f64], measured: &[f64]) -> TrackingError {
     TrackingError {
         err2_pct: 100.0 * (e2 / d2.max(1e-300)).sqrt(),
         errinf_pct: 100.0 * emax / dmax.max(1e-300),
+        mean_error,
     }
 }
 

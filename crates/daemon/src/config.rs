@@ -185,6 +185,9 @@ pub struct RunPlan {
     pub miic: MiicPlan,
     /// Approach speed, nm/s of actuator travel.
     pub approach_speed_nm_per_s: f64,
+    /// Play each final drive once more with the tip out of contact and subtract the lever's
+    /// response there (hydrodynamic drag, optical cross-talk) from the force.
+    pub free_space_correction: bool,
 }
 
 impl Default for RunPlan {
@@ -203,6 +206,7 @@ impl Default for RunPlan {
             out_dir: "runs".into(),
             miic: MiicPlan::default(),
             approach_speed_nm_per_s: 1000.0,
+            free_space_correction: true,
         }
     }
 }

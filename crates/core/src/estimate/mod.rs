@@ -98,6 +98,39 @@ impl Estimate {
         PronySeries::param_names(self.model.order())
     }
 
+    /// Adds a systematic uncertainty: `delta_log[i]` is the (fully correlated) shift of
+    /// `ln θ_i` that one standard deviation of a calibration quantity causes. Its outer product
+    /// joins the covariance and the intervals widen accordingly. Log fits only; others are
+    /// returned unchanged.
+    pub fn with_systematic(mut self, delta_log: &[f64], what: &str) -> Self {
+        let Some(lcov) = self.log_covariance.as_mut() else {
+            return self;
+        };
+        let n = lcov.nrows();
+        if delta_log.len() != n || delta_log.iter().any(|d| !d.is_finite()) {
+            return self;
+        }
+        for i in 0..n {
+            for j in 0..n {
+                lcov[(i, j)] += delta_log[i] * delta_log[j];
+            }
+        }
+        let values = self.model.to_vec();
+        let lcov = lcov.clone();
+        self.covariance = DMatrix::from_fn(n, n, |i, j| lcov[(i, j)] * values[i] * values[j]);
+        let log_std: Vec<f64> = (0..n).map(|i| lcov[(i, i)].max(0.0).sqrt()).collect();
+        self.std = values.iter().zip(&log_std).map(|(v, s)| v * s).collect();
+        self.ci95 = values
+            .iter()
+            .zip(&log_std)
+            .map(|(v, s)| [v * (-Z95 * s).exp(), v * (Z95 * s).exp()])
+            .collect();
+        self.diagnostics.warnings.push(format!(
+            "intervals include the calibration uncertainty of {what}"
+        ));
+        self
+    }
+
     /// Builds an estimate from a log-parameter fit.
     pub(crate) fn from_log_fit(
         method: Method,

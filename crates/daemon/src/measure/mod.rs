@@ -189,7 +189,18 @@ fn run_inner(
         message: "calibrating on the hard reference".into(),
     });
     s.inst.select_sample(SampleSlot::Reference)?;
-    let ref_app = s.approach(preload_n, plan.approach_speed_nm_per_s)?;
+    // Push to three times the preload: the detector's linearity is then measured over the
+    // deflection range the reference will see under the excitation.
+    let mut ref_app = s.approach(3.0 * preload_n, plan.approach_speed_nm_per_s)?;
+    // Refine with repeated sweeps: one ramp sees slow noise as curvature.
+    let lo = ref_app.contact_drive_v + 0.1 * (ref_app.target_drive_v - ref_app.contact_drive_v);
+    if let Some((k, sk)) =
+        s.linearity_sweep(lo, ref_app.target_drive_v, ref_app.baseline_v, 12, 0.25)?
+    {
+        ref_app.detector_cubic_per_v2 = Some(k);
+        ref_app.detector_cubic_std = Some(sk);
+    }
+    let cubic = ref_app.detector_cubic_per_v2.unwrap_or(0.0);
     let expected_slope = t.actuator.gain_nm_per_v / c_nm;
     report.calibration.reference = Some(ref_app);
     report.calibration.sensitivity_ratio = ref_app.slope_v_per_v / expected_slope;
@@ -285,6 +296,16 @@ fn run_inner(
     let mut fit_opts = FrequencyFitOptions::new(plan.order, fs, plan.periods);
     fit_opts.sampling = sampling;
     let mut pooled: Vec<PeriodicSpectra> = Vec::new();
+    let mut raw_records: Vec<RawRecord> = Vec::new();
+    let ctx = UyContext {
+        contact: cfg.twin.contact(),
+        baseline_v: app.baseline_v,
+        volts_per_newton,
+        sensitivity_m_per_v: c_nm * 1e-9,
+        periods: plan.periods,
+        fs,
+        fit: fit_opts.clone(),
+    };
     let mut design_loop: Option<DesignLoop> = None;
     let mut drive_dc = app.target_drive_v;
     for iteration in 1..=plan.max_iterations {
@@ -346,6 +367,7 @@ fn run_inner(
                 step,
                 err2_pct: err.err2_pct,
                 errinf_pct: err.errinf_pct,
+                mean_error_v: err.mean_error,
             });
             let done = err.err2_pct < plan.miic.target_err2_pct
                 && err.errinf_pct < plan.miic.target_errinf_pct;
@@ -389,6 +411,26 @@ fn run_inner(
             }
         };
 
+        // The lever's response to the same drive AC out of contact: hydrodynamic drag and any
+        // cross-talk of base motion into the deflection signal, which is not force.
+        let free_space: Option<Vec<f64>> = if plan.free_space_correction {
+            let p2p = drive.iter().copied().fold(f64::NEG_INFINITY, f64::max)
+                - drive.iter().copied().fold(f64::INFINITY, f64::min);
+            let reference_contact = report
+                .calibration
+                .reference
+                .map_or(app.contact_drive_v, |r| r.contact_drive_v);
+            let dc_free = (app.contact_drive_v.min(reference_contact) - 1.5 * p2p - 0.5)
+                .max(s.inst.limits().min_drive_v + p2p);
+            let shifted: Vec<f64> = drive.iter().map(|v| v - drive_dc + dc_free).collect();
+            s.move_to(shifted[0], move_speed, 0.0)?;
+            let f = play(s, &shifted, plan.periods)?;
+            s.move_to(drive[0], move_speed, 0.3)?;
+            Some(f.deflection[f.start..].to_vec())
+        } else {
+            None
+        };
+
         // Record the acquisition (warm-up included) before anything else can fail.
         let rec = recording(cfg, &played, &reference.deflection[reference.start - np..]);
         let stem = dir.join(format!("iter-{iteration:02}"));
@@ -399,35 +441,41 @@ fn run_inner(
         )?;
 
         // Force and indentation over the recorded periods → u, y → estimate (pooled).
-        let contact = cfg.twin.contact();
         let w = played.start..played.start + np * plan.periods;
-        let u: Vec<f64> = played.deflection[w.clone()]
-            .iter()
-            .map(|d| contact.u_from_force((d - app.baseline_v) / volts_per_newton))
-            .collect();
-        let y: Vec<f64> = w
-            .clone()
-            .map(|i| {
-                let r = reference.deflection[i - played.start + reference.start];
-                contact.y_from_indentation(c_nm * 1e-9 * (r - played.deflection[i]))
-            })
-            .collect();
-        // Drift and creep move the period means; remove the line through them first.
-        let (u, y) = (
-            remove_linear_drift(&u, plan.periods),
-            remove_linear_drift(&y, plan.periods),
-        );
-        let spectra = periodic_spectra(
-            &u,
-            &y,
-            fs,
-            plan.periods,
-            &fit_opts.lines,
-            fit_opts.noise_smoothing_bins,
-        )?;
+        raw_records.push(RawRecord {
+            deflection: played.deflection[w.clone()].to_vec(),
+            reference: reference.deflection[reference.start..reference.start + np * plan.periods]
+                .to_vec(),
+            free_space,
+        });
+        let spectra = record_spectra(raw_records.last().expect("pushed"), cubic, &ctx)?;
         pooled.push(spectra);
-        let est: Estimate = fit_spectra(&pool_spectra(&pooled).expect("same rate"), &fit_opts)
+        let mut est: Estimate = fit_spectra(&pool_spectra(&pooled).expect("same rate"), &fit_opts)
             .with_context(|| format!("estimation in iteration {iteration}"))?;
+        // The detector-linearity calibration is uncertain too: refit at k ± σ_k, and let the
+        // shift it causes join the intervals.
+        if let Some(sk) = ref_app
+            .detector_cubic_std
+            .filter(|s| *s > 0.0 && s.is_finite())
+        {
+            let refit = |k: f64| -> Option<Vec<f64>> {
+                let sp: Vec<PeriodicSpectra> = raw_records
+                    .iter()
+                    .map(|r| record_spectra(r, k, &ctx))
+                    .collect::<Result<_, _>>()
+                    .ok()?;
+                let e = fit_spectra(&pool_spectra(&sp)?, &fit_opts).ok()?;
+                Some(e.values())
+            };
+            if let (Some(up), Some(dn)) = (refit(cubic + sk), refit(cubic - sk)) {
+                let delta: Vec<f64> = up
+                    .iter()
+                    .zip(&dn)
+                    .map(|(a, b)| 0.5 * (a.ln() - b.ln()))
+                    .collect();
+                est = est.with_systematic(&delta, "the detector linearity");
+            }
+        }
         let rel_change = match design_loop.as_mut() {
             None => {
                 let mut lc = LoopConfig::new(design_cfg.clone(), synth);
@@ -464,6 +512,68 @@ fn run_inner(
         }
     }
     Ok(())
+}
+
+/// The deflections of one iteration, before any correction.
+struct RawRecord {
+    deflection: Vec<f64>,
+    reference: Vec<f64>,
+    free_space: Option<Vec<f64>>,
+}
+
+/// What turns raw deflections into u and y.
+struct UyContext {
+    contact: viscoprobe_core::contact::Contact,
+    baseline_v: f64,
+    volts_per_newton: f64,
+    sensitivity_m_per_v: f64,
+    periods: usize,
+    fs: f64,
+    fit: FrequencyFitOptions,
+}
+
+/// Spectra of one record with the detector linearised by the cubic coefficient `k`, the
+/// out-of-contact response removed from the force, and linear drift removed.
+fn record_spectra(r: &RawRecord, k: f64, c: &UyContext) -> anyhow::Result<PeriodicSpectra> {
+    let lin = |v: f64| session::linearise(v, k);
+    let free: Option<Vec<f64>> = r.free_space.as_ref().map(|f| {
+        let l: Vec<f64> = f.iter().map(|&v| lin(v)).collect();
+        let l = remove_linear_drift(&l, c.periods);
+        let mean = l.iter().sum::<f64>() / l.len() as f64;
+        l.iter().map(|v| v - mean).collect()
+    });
+    let base = lin(c.baseline_v);
+    let u: Vec<f64> = r
+        .deflection
+        .iter()
+        .enumerate()
+        .map(|(i, d)| {
+            let f = free.as_ref().map_or(0.0, |f| f[i]);
+            c.contact
+                .u_from_force((lin(*d) - f - base) / c.volts_per_newton)
+        })
+        .collect();
+    let y: Vec<f64> = r
+        .reference
+        .iter()
+        .zip(&r.deflection)
+        .map(|(rf, d)| {
+            c.contact
+                .y_from_indentation(c.sensitivity_m_per_v * (lin(*rf) - lin(*d)))
+        })
+        .collect();
+    let (u, y) = (
+        remove_linear_drift(&u, c.periods),
+        remove_linear_drift(&y, c.periods),
+    );
+    Ok(periodic_spectra(
+        &u,
+        &y,
+        c.fs,
+        c.periods,
+        &c.fit.lines,
+        c.fit.noise_smoothing_bins,
+    )?)
 }
 
 /// Plays `drive` (one period) for one warm-up period and `periods` recorded ones.

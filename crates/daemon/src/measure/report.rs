@@ -18,6 +18,8 @@ pub struct MiicRecord {
     pub step: usize,
     pub err2_pct: f64,
     pub errinf_pct: f64,
+    /// Mean (preload) offset of the deflection from the desired, V.
+    pub mean_error_v: f64,
 }
 
 /// One design iteration.
@@ -85,6 +87,7 @@ impl IterationRecord {
             tracking: TrackingError {
                 err2_pct: last.err2_pct,
                 errinf_pct: last.errinf_pct,
+                mean_error: last.mean_error_v,
             },
             miic,
             force_period: (

@@ -32,6 +32,21 @@ pub struct Approach {
     pub target_drive_v: f64,
     /// Slope of deflection vs drive in contact near the target, V/V.
     pub slope_v_per_v: f64,
+    /// Cubic nonlinearity of the deflection detector, `v_read = v + k·v³` (1/V²), measured
+    /// against the actuator's position sensor on a rigid sample; `None` without a sensor or
+    /// on a compliant sample.
+    pub detector_cubic_per_v2: Option<f64>,
+    /// Standard error of that coefficient (residuals treated as AR(1) noise), 1/V².
+    pub detector_cubic_std: Option<f64>,
+}
+
+/// Undoes a cubic detector nonlinearity `v_read = v + k·v³` (Newton, from `v_read`).
+pub fn linearise(v_read: f64, k: f64) -> f64 {
+    let mut v = v_read;
+    for _ in 0..3 {
+        v -= (v + k * v * v * v - v_read) / (1.0 + 3.0 * k * v * v);
+    }
+    v
 }
 
 impl Session<'_> {
@@ -109,6 +124,7 @@ impl Session<'_> {
         let max_v = self.inst.limits().max_drive_v;
         let mut v = here;
         let (mut drives, mut forces) = (Vec::new(), Vec::new());
+        let (mut heights, mut raw) = (Vec::new(), Vec::new());
         loop {
             if self.cancelled() {
                 bail!("cancelled during approach");
@@ -131,10 +147,16 @@ impl Session<'_> {
                 let avg = f[lo..=i].iter().sum::<f64>() / (i - lo + 1) as f64;
                 drives.push(dv);
                 forces.push(avg);
+                raw.push(acq.channels[0][i]);
+                if let Some(h) = acq.channels.get(1) {
+                    heights.push(h[i]);
+                }
             }
             if let Some(i) = forces.iter().position(|&f| f >= target_force_n) {
                 drives.truncate(i + 1);
                 forces.truncate(i + 1);
+                raw.truncate(i + 1);
+                heights.truncate((i + 1).min(heights.len()));
                 break;
             }
         }
@@ -154,13 +176,115 @@ impl Session<'_> {
         } else {
             target_drive_v
         };
+        let cubic = self.detector_cubic(&heights, &raw, &forces, target_force_n, baseline_v);
         Ok(Approach {
             baseline_v,
             contact_drive_v,
             target_drive_v,
             slope_v_per_v,
+            detector_cubic_per_v2: cubic.map(|c| c.0),
+            detector_cubic_std: cubic.map(|c| c.1),
         })
     }
+
+    /// On a rigid sample the deflection is linear in the actuator position: the cubic part of
+    /// deflection vs position in the approach (a first look; [`Self::linearity_sweep`] refines).
+    fn detector_cubic(
+        &self,
+        heights: &[f64],
+        raw: &[f64],
+        forces: &[f64],
+        target: f64,
+        baseline: f64,
+    ) -> Option<(f64, f64)> {
+        if heights.len() != raw.len() || heights.is_empty() {
+            return None;
+        }
+        let contact: Vec<(f64, f64)> = heights
+            .iter()
+            .zip(raw)
+            .zip(forces)
+            .filter(|(_, f)| **f >= 0.1 * target)
+            .map(|((h, d), _)| (*h, d - baseline))
+            .collect();
+        cubic_fit(&contact).map(|k| (k, f64::NAN))
+    }
+
+    /// Detector linearity on the hard reference: `cycles` triangle sweeps of the drive between
+    /// `from_v` and `to_v` (both in contact), deflection against the actuator's position sensor.
+    /// Returns the cubic coefficient (1/V²) and its standard error from the scatter of the
+    /// per-cycle estimates (so slow 1/f noise is counted honestly). `None` without a sensor.
+    pub fn linearity_sweep(
+        &mut self,
+        from_v: f64,
+        to_v: f64,
+        baseline: f64,
+        cycles: usize,
+        cycle_s: f64,
+    ) -> anyhow::Result<Option<(f64, f64)>> {
+        let n = (cycle_s * self.fs_hz).round() as usize;
+        let tri: Vec<f64> = (0..n)
+            .map(|i| {
+                let ph = i as f64 / n as f64;
+                let t = if ph < 0.5 { 2.0 * ph } else { 2.0 - 2.0 * ph };
+                from_v + (to_v - from_v) * t
+            })
+            .collect();
+        self.move_to(from_v, (to_v - from_v).abs() * 4.0 / cycle_s, 0.05)?;
+        let seq: Vec<f64> = tri.iter().copied().cycle().take(n * cycles).collect();
+        let acq = self.stream(&seq)?;
+        let Some(height) = acq.channels.get(1) else {
+            return Ok(None);
+        };
+        let pairs: Vec<(f64, f64)> = height
+            .iter()
+            .zip(&acq.channels[0])
+            .map(|(h, d)| (*h, d - baseline))
+            .collect();
+        let per_cycle: Vec<f64> = pairs.chunks(n).filter_map(cubic_fit).collect();
+        let Some(k) = cubic_fit(&pairs) else {
+            return Ok(None);
+        };
+        let m = per_cycle.len() as f64;
+        if m < 3.0 {
+            return Ok(Some((k, f64::NAN)));
+        }
+        let mean = per_cycle.iter().sum::<f64>() / m;
+        let sd = (per_cycle.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (m - 1.0)).sqrt();
+        Ok(Some((k, sd / m.sqrt())))
+    }
+}
+
+/// Cubic coefficient `k` of `d_read = d + k·d³` with `d = a·x + b` linear in the position x:
+/// `d_read` is then a cubic polynomial in x, fitted by least squares (x scaled), from whose
+/// coefficients a, b and k follow.
+pub fn cubic_fit(points: &[(f64, f64)]) -> Option<f64> {
+    if points.len() < 50 {
+        return None;
+    }
+    let xs = points
+        .iter()
+        .map(|p| p.0.abs())
+        .fold(0.0, f64::max)
+        .max(1e-9);
+    let mut ata = nalgebra::Matrix4::<f64>::zeros();
+    let mut atb = nalgebra::Vector4::<f64>::zeros();
+    for (x, d) in points {
+        let t = x / xs;
+        let row = nalgebra::Vector4::new(1.0, t, t * t, t * t * t);
+        ata += row * row.transpose();
+        atb += row * *d;
+    }
+    let c = ata.cholesky()?.solve(&atb);
+    let (p0, p1, p3) = (c[0], c[1] / xs, c[3] / (xs * xs * xs));
+    // p3 = k·a³, p1 = a + 3k·a·b², p0 = b + k·b³: fixed-point passes.
+    let (mut a, mut b, mut k) = (p1, p0, 0.0);
+    for _ in 0..20 {
+        k = p3 / (a * a * a);
+        a = p1 / (1.0 + 3.0 * k * b * b);
+        b = p0 - k * b * b * b;
+    }
+    k.is_finite().then_some(k)
 }
 
 /// Least-squares line `y = a·x + b` through points; returns (a, b).
