@@ -126,11 +126,11 @@ mod tests {
             let g = log_sensitivity(&m, &samp, f);
             let v = m.to_vec();
             for k in 0..v.len() {
-                let h = 1e-6;
+                let h: f64 = 1e-6;
                 let mut up = v.clone();
                 let mut dn = v.clone();
-                up[k] *= (h as f64).exp();
-                dn[k] *= (-h as f64).exp();
+                up[k] *= h.exp();
+                dn[k] *= (-h).exp();
                 let fd = (samp.response(&PronySeries::from_vec(&up), f)
                     - samp.response(&PronySeries::from_vec(&dn), f))
                     / (2.0 * h);

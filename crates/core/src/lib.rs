@@ -2,11 +2,11 @@
 pub mod contact;
 pub mod design;
 pub mod discrete;
-pub mod prony;
-pub mod recording;
+pub mod estimate;
 pub mod fisher;
 pub mod linalg;
-pub mod estimate;
+pub mod miic;
+pub mod prony;
+pub mod recording;
 pub mod studies;
 pub mod twin;
-pub mod miic;

@@ -192,7 +192,7 @@ pub fn miic_step_with_plant(
             }
         }
     }
-    if n % 2 == 0 {
+    if n.is_multiple_of(2) {
         next[n / 2] = Complex64::new(0.0, 0.0);
     }
     // DC: integral correction through the static slope.

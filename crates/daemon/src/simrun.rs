@@ -263,10 +263,12 @@ pub fn simulate_recording(
         block_len: block,
     })?;
     let total = profile.drive_v.len();
+    // (drive, input channels, per-sample true force and indentation)
+    type SlotRun = (Vec<f64>, Vec<Vec<f64>>, Vec<(f64, f64)>);
     let mut run = |inst: &mut Guarded<SimulatedSpm>,
                    slot: SampleSlot,
                    label: &str|
-     -> anyhow::Result<(Vec<f64>, Vec<Vec<f64>>, Vec<(f64, f64)>)> {
+     -> anyhow::Result<SlotRun> {
         inst.select_sample(slot)?;
         let mut truth = Vec::with_capacity(total);
         let mut acq = viscoprobe_hal::acquire::Acquired::default();

@@ -266,7 +266,7 @@ fn neighbours_power(y: &[Complex64], excited: &[bool], k: usize, w: usize) -> f6
 /// leak into the lowest lines as a 1/k skirt. With fewer than two periods the record is
 /// returned unchanged.
 pub fn remove_linear_drift(x: &[f64], periods: usize) -> Vec<f64> {
-    if periods < 2 || x.len() % periods != 0 {
+    if periods < 2 || !x.len().is_multiple_of(periods) {
         return x.to_vec();
     }
     let np = x.len() / periods;

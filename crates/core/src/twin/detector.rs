@@ -183,8 +183,8 @@ mod tests {
         let mut d = Detector::new(&cfg, fs, 0);
         let x: Vec<f64> = (0..20).map(|k| k as f64).collect();
         let y: Vec<f64> = x.iter().map(|&v| d.step(v)).collect();
-        for k in 5..20 {
-            assert!((y[k] - (k as f64 - 2.5)).abs() < 1e-12, "k {k}: {}", y[k]);
+        for (k, yk) in y.iter().enumerate().skip(5) {
+            assert!((yk - (k as f64 - 2.5)).abs() < 1e-12, "k {k}: {yk}");
         }
     }
 

@@ -663,7 +663,7 @@ fn initial_drive(
         d[kk] /= g;
         d[n - kk] = d[kk].conj();
     }
-    if n % 2 == 0 {
+    if n.is_multiple_of(2) {
         d[n / 2] = Complex64::new(0.0, 0.0);
     }
     d[0] = Complex64::new(dc * n as f64, 0.0);

@@ -66,6 +66,7 @@ fn convergence(path: &Path, r: &RunReport) -> anyhow::Result<()> {
         .y_desc("deviation, %")
         .draw()
         .map_err(err)?;
+    #[allow(clippy::needless_range_loop)] // i indexes params, names and intervals alike
     for i in 0..n {
         let color = Palette99::pick(i).to_rgba();
         let off = (i as f64 - n as f64 / 2.0) * 0.03;

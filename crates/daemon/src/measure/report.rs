@@ -65,8 +65,9 @@ impl IterationRecord {
         let _ = base;
         let mut achieved = vec![0.0; np];
         for p in 0..periods {
-            for i in 0..np {
-                achieved[i] += played.deflection[played.start + p * np + i] / periods as f64;
+            let from = played.start + p * np;
+            for (a, d) in achieved.iter_mut().zip(&played.deflection[from..from + np]) {
+                *a += d / periods as f64;
             }
         }
         let step = (np / 2000).max(1);
