@@ -305,10 +305,7 @@ pub fn simulate_recording(
     let (_, ref_ch, _) = run(&mut inst, SampleSlot::Reference, "reference")?;
     let (drive, ch, truth) = run(&mut inst, SampleSlot::Soft, "sample")?;
     let t = &cfg.twin;
-    let tip = match t.tip {
-        TipConfig::Sphere { radius_nm } => Tip::Sphere { radius_nm },
-        TipConfig::Cone { half_angle_deg } => Tip::Cone { half_angle_deg },
-    };
+
     let mut truth_table = toml::Table::new();
     truth_table.insert(
         "twin".into(),
@@ -339,24 +336,7 @@ pub fn simulate_recording(
             "true_force_n and true_indentation_m are the simulator's ground truth".into(),
         ),
     );
-    let meta = Sidecar {
-        format: FORMAT.to_string(),
-        sample_rate_hz: fs,
-        cantilever: Cantilever {
-            spring_constant_n_per_m: t.cantilever.spring_constant_n_per_m,
-            deflection_sensitivity_nm_per_v: t.cantilever.deflection_sensitivity_nm_per_v,
-        },
-        tip,
-        piezo: Some(Piezo {
-            gain_nm_per_v: t.actuator.gain_nm_per_v,
-        }),
-        sample: Sample {
-            name: t.sample.name.clone(),
-            poisson_ratio: t.sample.poisson_ratio,
-        },
-        notes: Some(notes),
-        truth: Some(truth_table),
-    };
+    let meta = sidecar_for_twin(t, fs, Some(notes), Some(truth_table));
     let height = if ch.len() > 1 {
         Some(ch[1].clone())
     } else {
@@ -379,4 +359,36 @@ pub fn simulate_recording(
         meta,
         warnings: vec![],
     })
+}
+
+/// The sidecar of a recording made on the twin `t`: its calibration, tip and sample as the
+/// instrument would report them, plus free notes and the simulator's truth.
+pub fn sidecar_for_twin(
+    t: &viscoprobe_core::twin::TwinConfig,
+    fs: f64,
+    notes: Option<toml::Table>,
+    truth: Option<toml::Table>,
+) -> Sidecar {
+    let tip = match t.tip {
+        TipConfig::Sphere { radius_nm } => Tip::Sphere { radius_nm },
+        TipConfig::Cone { half_angle_deg } => Tip::Cone { half_angle_deg },
+    };
+    Sidecar {
+        format: FORMAT.to_string(),
+        sample_rate_hz: fs,
+        cantilever: Cantilever {
+            spring_constant_n_per_m: t.cantilever.spring_constant_n_per_m,
+            deflection_sensitivity_nm_per_v: t.cantilever.deflection_sensitivity_nm_per_v,
+        },
+        tip,
+        piezo: Some(Piezo {
+            gain_nm_per_v: t.actuator.gain_nm_per_v,
+        }),
+        sample: Sample {
+            name: t.sample.name.clone(),
+            poisson_ratio: t.sample.poisson_ratio,
+        },
+        notes,
+        truth,
+    }
 }

@@ -453,25 +453,8 @@ pub fn fit_spectra(
     if starts.is_empty() {
         return Err(EstimateError::NoStart);
     }
-    let mut best: Option<lm::LmResult> = None;
-    let mut last_unconverged: Option<lm::LmResult> = None;
-    for s in &starts {
-        if let Some(res) = lm::solve(s, eval, opts.lm) {
-            if !res.converged {
-                last_unconverged = Some(res);
-                continue;
-            }
-            if best.as_ref().is_none_or(|b| res.cost < b.cost) {
-                best = Some(res);
-            }
-        }
-    }
-    let Some(best) = best else {
-        let (iterations, cost) = last_unconverged
-            .map(|r| (r.iterations, r.cost))
-            .unwrap_or((0, f64::NAN));
-        return Err(EstimateError::NoConvergence { iterations, cost });
-    };
+    let best = lm::best_of(&starts, eval, opts.lm)
+        .map_err(|(iterations, cost)| EstimateError::NoConvergence { iterations, cost })?;
     let rcond = scaled_rcond(&best.jtj);
     if rcond < SINGULAR_RCOND {
         return Err(EstimateError::IllConditioned { rcond });

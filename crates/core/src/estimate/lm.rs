@@ -122,6 +122,29 @@ pub fn solve(p0: &[f64], eval: impl Fn(&[f64]) -> Evaluation, opts: LmOptions) -
     })
 }
 
+/// Solves from every start and keeps the converged result of lowest cost. When none
+/// converged: the iteration count and cost of the last attempt, for the error message.
+pub fn best_of(
+    starts: &[Vec<f64>],
+    eval: impl Fn(&[f64]) -> Evaluation,
+    opts: LmOptions,
+) -> Result<LmResult, (usize, f64)> {
+    let mut best: Option<LmResult> = None;
+    let mut last = (0, f64::NAN);
+    for s in starts {
+        if let Some(res) = solve(s, &eval, opts) {
+            if !res.converged {
+                last = (res.iterations, res.cost);
+                continue;
+            }
+            if best.as_ref().is_none_or(|b| res.cost < b.cost) {
+                best = Some(res);
+            }
+        }
+    }
+    best.ok_or(last)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -125,23 +125,8 @@ pub fn fit_time_domain(
     if starts.is_empty() {
         return Err(EstimateError::NoStart);
     }
-    let mut best: Option<lm::LmResult> = None;
-    let mut last = None;
-    for s in &starts {
-        if let Some(res) = lm::solve(s, eval, opts.lm) {
-            if !res.converged {
-                last = Some((res.iterations, res.cost));
-                continue;
-            }
-            if best.as_ref().is_none_or(|b| res.cost < b.cost) {
-                best = Some(res);
-            }
-        }
-    }
-    let Some(best) = best else {
-        let (iterations, cost) = last.unwrap_or((0, f64::NAN));
-        return Err(EstimateError::NoConvergence { iterations, cost });
-    };
+    let best = lm::best_of(&starts, eval, opts.lm)
+        .map_err(|(iterations, cost)| EstimateError::NoConvergence { iterations, cost })?;
     let d: Vec<f64> = (0..n_params)
         .map(|i| best.jtj[(i, i)].max(1e-300).sqrt())
         .collect();

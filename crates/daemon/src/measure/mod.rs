@@ -31,10 +31,8 @@ use viscoprobe_core::estimate::frequency::{
 use viscoprobe_core::estimate::Estimate;
 use viscoprobe_core::miic::{miic_step_with_plant, spectrum, tracking_error, MiicConfig};
 use viscoprobe_core::prony::PronySeries;
-use viscoprobe_core::recording::{
-    Cantilever, Drive, Piezo, Recording, Sample, Sidecar, Tip, FORMAT,
-};
-use viscoprobe_core::twin::{SampleSlot, TipConfig};
+use viscoprobe_core::recording::{Drive, Recording};
+use viscoprobe_core::twin::SampleSlot;
 use viscoprobe_hal::sim::{Pacing, SimulatedSpm};
 use viscoprobe_hal::{ForceCalibration, Guarded, Instrument, SafetyLimits, StreamConfig};
 
@@ -699,10 +697,7 @@ fn recording(cfg: &SimConfigFile, played: &Played, reference: &[f64]) -> Recordi
         start: 0,
     };
     let t = &cfg.twin;
-    let tip = match t.tip {
-        TipConfig::Sphere { radius_nm } => Tip::Sphere { radius_nm },
-        TipConfig::Cone { half_angle_deg } => Tip::Cone { half_angle_deg },
-    };
+
     let mut truth = toml::Table::new();
     if let Ok(v) = toml::Value::try_from(t) {
         truth.insert("twin".into(), v);
@@ -715,24 +710,7 @@ fn recording(cfg: &SimConfigFile, played: &Played, reference: &[f64]) -> Recordi
         reference_deflection_v: Some(reference.to_vec()),
         measured_height_nm: None,
         extra_columns: vec![],
-        meta: Sidecar {
-            format: FORMAT.into(),
-            sample_rate_hz: fs,
-            cantilever: Cantilever {
-                spring_constant_n_per_m: t.cantilever.spring_constant_n_per_m,
-                deflection_sensitivity_nm_per_v: t.cantilever.deflection_sensitivity_nm_per_v,
-            },
-            tip,
-            piezo: Some(Piezo {
-                gain_nm_per_v: t.actuator.gain_nm_per_v,
-            }),
-            sample: Sample {
-                name: t.sample.name.clone(),
-                poisson_ratio: t.sample.poisson_ratio,
-            },
-            notes: None,
-            truth: Some(truth),
-        },
+        meta: crate::simrun::sidecar_for_twin(t, fs, None, Some(truth)),
         warnings: vec![],
     }
 }
