@@ -10,7 +10,9 @@
 //!
 //! * [`sim::SimulatedSpm`] — the digital twin of `viscoprobe_core::twin`, in simulated time
 //!   or paced to the wall clock;
-//! * the serial DAQ board (issue #5, not yet here).
+//! * [`daq::SerialDaq`] — the serial DAQ board over `serialport`, speaking the protocol of
+//!   `docs/daq-protocol.md`; the `viscoprobe-daq-emu` binary emulates the board on a
+//!   pseudo-terminal with the twin behind it.
 //!
 //! This crate does blocking I/O and may sleep (wall-clock pacing); it knows nothing of tokio,
 //! configuration files or run storage, which belong to the daemon.
