@@ -129,6 +129,21 @@ pub struct InstrumentSection {
     /// `simulated` (as fast as possible) or `wall_clock`.
     #[serde(default)]
     pub pacing: PacingName,
+    /// `simulated` (the twin in this file) or `serial` (a DAQ board at `port`).
+    #[serde(default)]
+    pub backend: BackendName,
+    /// Serial port of the DAQ board, e.g. `/dev/ttyACM0` (with `backend = "serial"`).
+    #[serde(default)]
+    pub port: Option<String>,
+}
+
+/// Which instrument backend a run uses.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum BackendName {
+    #[default]
+    Simulated,
+    Serial,
 }
 
 fn default_block() -> usize {

@@ -112,7 +112,16 @@ pub fn run_measurement(
         crate::config::PacingName::Simulated => Pacing::Simulated,
         crate::config::PacingName::WallClock => Pacing::WallClock,
     };
-    let backend: Box<dyn Instrument> = Box::new(SimulatedSpm::new(t.clone(), pacing));
+    let backend: Box<dyn Instrument> = match (cfg.instrument.backend, &cfg.instrument.port) {
+        (crate::config::BackendName::Serial, Some(port)) => Box::new(
+            viscoprobe_hal::daq::SerialDaq::open(
+                port,
+                viscoprobe_hal::daq::SerialOptions::default(),
+            )
+            .with_context(|| format!("opening the DAQ board at {port}"))?,
+        ),
+        _ => Box::new(SimulatedSpm::new(t.clone(), pacing)),
+    };
     let sf = &cfg.safety;
     let limits = SafetyLimits {
         min_drive_v: sf.min_drive_v,
