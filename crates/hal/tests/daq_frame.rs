@@ -66,6 +66,7 @@ fn message() -> impl Strategy<Value = Message> {
             })
         ),
         any::<u32>().prop_map(|c| Message::Heartbeat { counter: c }),
+        any::<u8>().prop_map(|slot| Message::SelectSlot { slot }),
         (
             any::<u16>(),
             any::<(u8, u8, u8)>(),
@@ -74,18 +75,22 @@ fn message() -> impl Strategy<Value = Message> {
             any::<u32>(),
             channel(),
             prop::collection::vec(channel(), 0..4),
-            "[ -~]{0,40}"
+            "[ -~]{0,40}",
+            any::<u8>()
         )
-            .prop_map(|(p, f, r, b, d, drive, inputs, model)| Message::Caps(Caps {
-                protocol_version: p,
-                firmware: f,
-                max_sample_rate_hz: r,
-                max_block: b,
-                drive_buffer: d,
-                drive,
-                inputs,
-                model,
-            })),
+            .prop_map(
+                |(p, f, r, b, d, drive, inputs, model, stage_slots)| Message::Caps(Caps {
+                    protocol_version: p,
+                    firmware: f,
+                    max_sample_rate_hz: r,
+                    max_block: b,
+                    drive_buffer: d,
+                    drive,
+                    inputs,
+                    model,
+                    stage_slots,
+                })
+            ),
         (any::<u8>(), status()).prop_map(|(r, s)| Message::Ack {
             request: r,
             status: s

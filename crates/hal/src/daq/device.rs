@@ -202,6 +202,7 @@ impl<P: Plant> Device<P> {
             drive,
             inputs,
             model: info.model,
+            stage_slots: 0,
         };
         Self {
             scratch: vec![0.0; caps.inputs.len()],

@@ -211,6 +211,13 @@ mod tests {
                 .map(|h| u8::from_str_radix(h, 16).unwrap())
                 .collect();
         assert_eq!(encode_frame(&body), wire);
+        let body = crate::daq::protocol::Message::SelectSlot { slot: 1 }.encode();
+        assert_eq!(body, [0x08, 0x01]);
+        assert_eq!(crc32(&body), 0xFE07_A861);
+        assert_eq!(
+            encode_frame(&body),
+            [0x07, 0x08, 0x01, 0x61, 0xA8, 0x07, 0xFE, 0x00]
+        );
     }
 
     #[test]

@@ -2,9 +2,10 @@
 //!
 //! A message body is one type byte and a payload; all integers and floats are little-endian.
 //! [`Message::encode`] and [`Message::decode`] are exact inverses for every valid message, and
-//! `decode` returns an error (never panics) on anything else.
+//! `decode` returns an error (never panics) on anything else — except that `CAPS` may grow at
+//! its end (§1): bytes after the fields this crate knows are ignored.
 
-use crate::instrument::ChannelRange;
+use crate::instrument::{ChannelRange, SampleSlot};
 
 /// The protocol version this crate speaks.
 pub const PROTOCOL_VERSION: u16 = 1;
@@ -18,6 +19,7 @@ pub mod kind {
     pub const ABORT: u8 = 0x05;
     pub const DRIVE: u8 = 0x06;
     pub const HEARTBEAT: u8 = 0x07;
+    pub const SELECT_SLOT: u8 = 0x08;
     pub const CAPS: u8 = 0x81;
     pub const ACK: u8 = 0x82;
     pub const INPUT: u8 = 0x83;
@@ -49,6 +51,8 @@ pub enum ErrorCode {
     Watchdog = 9,
     /// `HELLO` named a protocol version the device does not speak (argument: its own).
     Version = 10,
+    /// `SELECT_SLOT` named a slot the stage does not have (argument: the number of slots).
+    BadSlot = 11,
 }
 
 impl ErrorCode {
@@ -65,6 +69,7 @@ impl ErrorCode {
             8 => Underrun,
             9 => Watchdog,
             10 => Version,
+            11 => BadSlot,
             _ => return None,
         })
     }
@@ -148,6 +153,30 @@ pub fn from_code(range: &ChannelRange, code: i32) -> f64 {
     range.min_v + ((code as i64 + half) as f64) * range.lsb_v()
 }
 
+/// Stage slot numbers of `SELECT_SLOT`: slot 0 holds the sample under test, slot 1 the hard
+/// reference; further slots are the device's own business.
+pub mod slot {
+    pub const SOFT: u8 = 0;
+    pub const REFERENCE: u8 = 1;
+}
+
+/// The stage slot number of a [`SampleSlot`].
+pub fn slot_number(s: SampleSlot) -> u8 {
+    match s {
+        SampleSlot::Soft => slot::SOFT,
+        SampleSlot::Reference => slot::REFERENCE,
+    }
+}
+
+/// The [`SampleSlot`] of a stage slot number, if it is one of the two the host knows.
+pub fn slot_of_number(n: u8) -> Option<SampleSlot> {
+    match n {
+        slot::SOFT => Some(SampleSlot::Soft),
+        slot::REFERENCE => Some(SampleSlot::Reference),
+        _ => None,
+    }
+}
+
 /// `CAPS`: what the device is.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Caps {
@@ -161,6 +190,9 @@ pub struct Caps {
     pub inputs: Vec<WireChannel>,
     /// Model name, free text (e.g. `viscoprobe-daq-emu`).
     pub model: String,
+    /// Stage slots `SELECT_SLOT` can select, numbered from 0 (0: no switchable stage). An
+    /// optional trailing field: absent from the frame when 0, as firmware before it sends.
+    pub stage_slots: u8,
 }
 
 /// `CONFIGURE`: how to stream.
@@ -207,6 +239,10 @@ pub enum Message {
     },
     Heartbeat {
         counter: u32,
+    },
+    /// Move stage slot `slot` under the tip (only while not streaming).
+    SelectSlot {
+        slot: u8,
     },
     Caps(Caps),
     Ack {
@@ -330,6 +366,12 @@ impl<'a> Reader<'a> {
             last_drive_code: self.i32()?,
         })
     }
+    /// An optional trailing `u8` (0 when absent); skips any bytes after it.
+    fn rest_u8(&mut self) -> Result<u8, DecodeError> {
+        let v = if self.b.is_empty() { 0 } else { self.u8()? };
+        self.b = &[];
+        Ok(v)
+    }
     fn end(&self) -> Result<(), DecodeError> {
         if self.b.is_empty() {
             Ok(())
@@ -385,6 +427,7 @@ impl Message {
             Self::Abort => ABORT,
             Self::Drive { .. } => DRIVE,
             Self::Heartbeat { .. } => HEARTBEAT,
+            Self::SelectSlot { .. } => SELECT_SLOT,
             Self::Caps(_) => CAPS,
             Self::Ack { .. } => ACK,
             Self::Input { .. } => INPUT,
@@ -421,6 +464,7 @@ impl Message {
                 put_samples(&mut o, *sample_bytes, codes);
             }
             Self::Heartbeat { counter } => o.extend_from_slice(&counter.to_le_bytes()),
+            Self::SelectSlot { slot } => o.push(*slot),
             Self::Caps(c) => {
                 o.extend_from_slice(&c.protocol_version.to_le_bytes());
                 o.extend_from_slice(&[c.firmware.0, c.firmware.1, c.firmware.2]);
@@ -433,6 +477,10 @@ impl Message {
                     put_channel(&mut o, ch);
                 }
                 put_text(&mut o, &c.model);
+                // Optional: a device without a stage sends the original layout.
+                if c.stage_slots > 0 {
+                    o.push(c.stage_slots);
+                }
             }
             Self::Ack { request, status } => {
                 o.push(*request);
@@ -509,6 +557,7 @@ impl Message {
                 }
             }
             kind::HEARTBEAT => Self::Heartbeat { counter: r.u32()? },
+            kind::SELECT_SLOT => Self::SelectSlot { slot: r.u8()? },
             kind::CAPS => {
                 let protocol_version = r.u16()?;
                 let firmware = (r.u8()?, r.u8()?, r.u8()?);
@@ -530,6 +579,9 @@ impl Message {
                     drive,
                     inputs,
                     model: r.text()?,
+                    // Optional trailing fields: absent in older firmware; bytes after the
+                    // ones known here belong to later minor versions and are skipped.
+                    stage_slots: r.rest_u8()?,
                 })
             }
             kind::ACK => Self::Ack {
@@ -586,5 +638,63 @@ mod tests {
             assert!((-32768..=32767).contains(&c));
             assert_eq!(from_code(&r, c), r.quantise(v), "{v}");
         }
+    }
+
+    fn caps(stage_slots: u8) -> Caps {
+        let ch = |name: &str| WireChannel {
+            name: name.into(),
+            min: -10.0,
+            max: 10.0,
+            bits: 16,
+        };
+        Caps {
+            protocol_version: 1,
+            firmware: (1, 0, 0),
+            max_sample_rate_hz: 200_000,
+            max_block: 4096,
+            drive_buffer: 16_384,
+            drive: ch("drive_v"),
+            inputs: vec![ch("deflection_v")],
+            model: "m".into(),
+            stage_slots,
+        }
+    }
+
+    /// Firmware without a stage sends the original layout (ending with `model`); it decodes
+    /// as `stage_slots = 0`, and a stage-less device encodes exactly that layout.
+    #[test]
+    fn caps_stage_slots_is_an_optional_trailing_field() {
+        let old = Message::Caps(caps(0)).encode();
+        assert_eq!(
+            &old[old.len() - 2..],
+            &[1, b'm'],
+            "ends with the model text"
+        );
+        assert_eq!(Message::decode(&old), Ok(Message::Caps(caps(0))));
+        let new = Message::Caps(caps(2)).encode();
+        assert_eq!(new.len(), old.len() + 1);
+        assert_eq!(new[..old.len()], old[..]);
+        assert_eq!(Message::decode(&new), Ok(Message::Caps(caps(2))));
+        // Fields of later minor versions are skipped.
+        let mut later = new.clone();
+        later.extend_from_slice(&[7, 7, 7]);
+        assert_eq!(Message::decode(&later), Ok(Message::Caps(caps(2))));
+        // The other messages stay strict.
+        let mut sel = Message::SelectSlot { slot: 1 }.encode();
+        assert_eq!(sel, [kind::SELECT_SLOT, 1]);
+        sel.push(0);
+        assert!(Message::decode(&sel).is_err());
+        assert!(Message::decode(&[kind::SELECT_SLOT]).is_err());
+    }
+
+    #[test]
+    fn slot_numbers() {
+        for s in [SampleSlot::Soft, SampleSlot::Reference] {
+            assert_eq!(slot_of_number(slot_number(s)), Some(s));
+        }
+        assert_eq!(slot_number(SampleSlot::Soft), 0);
+        assert_eq!(slot_number(SampleSlot::Reference), 1);
+        assert_eq!(slot_of_number(2), None);
+        assert_eq!(ErrorCode::from_u16(11), Some(ErrorCode::BadSlot));
     }
 }

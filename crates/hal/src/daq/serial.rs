@@ -132,6 +132,7 @@ impl SerialDaq {
             },
             inputs: Vec::new(),
             model: String::new(),
+            stage_slots: 0,
         };
         let mut daq = Self {
             path: path.to_string(),
