@@ -6,10 +6,16 @@
 //! stdin EOF, SIGTERM/SIGINT, or when the host closes the port (unless `--persist`).
 //!
 //! ```text
-//! viscoprobe-daq-emu [--config FILE] [--firmware-version X.Y.Z] [--max-rate HZ]
-//!                    [--drop-frames N] [--corrupt-crc N] [--stall-after N]
-//!                    [--disconnect-after N] [--persist]
+//! viscoprobe-daq-emu [--config FILE] [--seed N] [--firmware-version X.Y.Z] [--max-rate HZ]
+//!                    [--stage-slots N] [--drop-frames N] [--corrupt-crc N]
+//!                    [--stall-after N] [--disconnect-after N] [--persist]
 //! ```
+//!
+//! `--config FILE` loads the `[twin]` table of a simulation config (or a bare twin document),
+//! seed included, so that the board gives the numbers `SimulatedSpm` gives for that table;
+//! `--seed N` overrides the seed as `viscoprobe run --seed` does. The twin's two-slot stage
+//! (0 soft sample, 1 hard reference) is advertised; `--stage-slots 0` hides it, as firmware
+//! without stage support.
 //!
 //! Fault flags count input blocks: `--drop-frames N` never sends every Nth, `--corrupt-crc N`
 //! sends every Nth with a wrong CRC, `--stall-after N` goes silent after N blocks (still
@@ -41,6 +47,7 @@ struct Faults {
 
 struct Args {
     config: Option<String>,
+    seed: Option<u64>,
     info: DeviceInfo,
     faults: Faults,
     persist: bool,
@@ -49,8 +56,9 @@ struct Args {
 fn usage(msg: &str) -> ! {
     eprintln!("viscoprobe-daq-emu: {msg}");
     eprintln!(
-        "usage: viscoprobe-daq-emu [--config FILE] [--firmware-version X.Y.Z] [--max-rate HZ] \
-         [--drop-frames N] [--corrupt-crc N] [--stall-after N] [--disconnect-after N] [--persist]"
+        "usage: viscoprobe-daq-emu [--config FILE] [--seed N] [--firmware-version X.Y.Z] \
+         [--max-rate HZ] [--stage-slots N] [--drop-frames N] [--corrupt-crc N] \
+         [--stall-after N] [--disconnect-after N] [--persist]"
     );
     std::process::exit(2)
 }
@@ -58,6 +66,7 @@ fn usage(msg: &str) -> ! {
 fn parse_args() -> Args {
     let mut a = Args {
         config: None,
+        seed: None,
         info: DeviceInfo::default(),
         faults: Faults::default(),
         persist: false,
@@ -82,6 +91,14 @@ fn parse_args() -> Args {
         };
         match flag.as_str() {
             "--config" => a.config = Some(val.clone()),
+            "--seed" => match val.parse::<u64>() {
+                Ok(n) => a.seed = Some(n),
+                Err(_) => usage(&format!("--seed: `{val}` is not an unsigned integer")),
+            },
+            "--stage-slots" => match val.parse::<u8>() {
+                Ok(n) => a.info.stage_slots = Some(n),
+                Err(_) => usage(&format!("--stage-slots: `{val}` is not 0..=255")),
+            },
             "--firmware-version" => {
                 let p: Vec<Option<u8>> = val.split('.').map(|s| s.parse().ok()).collect();
                 match p.as_slice() {
@@ -153,7 +170,7 @@ const OUT_HIGH_WATER: usize = 256 * 1024;
 
 fn main() {
     let args = parse_args();
-    let twin = match &args.config {
+    let mut twin = match &args.config {
         None => default_twin_config(),
         Some(p) => {
             let text = std::fs::read_to_string(p)
@@ -161,6 +178,9 @@ fn main() {
             twin_config_from_toml(&text).unwrap_or_else(|e| usage(&format!("{p}: {e}")))
         }
     };
+    if let Some(seed) = args.seed {
+        twin.seed = seed;
+    }
     // SAFETY: installing a handler that only stores to an atomic.
     unsafe {
         libc::signal(libc::SIGTERM, on_signal as *const () as libc::sighandler_t);

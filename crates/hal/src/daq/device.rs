@@ -10,11 +10,11 @@
 
 use super::frame::{FrameError, MAX_BODY_LEN};
 use super::protocol::{
-    from_code, kind, to_code, Caps, Configure, DeviceState, ErrorCode, Message, Status,
-    WireChannel, PROTOCOL_VERSION,
+    from_code, kind, slot_of_number, to_code, Caps, Configure, DeviceState, ErrorCode, Message,
+    Status, WireChannel, PROTOCOL_VERSION,
 };
 use std::collections::VecDeque;
-use viscoprobe_core::twin::{Twin, TwinConfig};
+use viscoprobe_core::twin::{SampleSlot, Twin, TwinConfig};
 
 /// What sits behind the converters.
 pub trait Plant {
@@ -24,22 +24,52 @@ pub trait Plant {
     fn reset(&mut self, fs_hz: f64, drive_v: f64);
     /// One sample: outputs `drive_v`, writes one value per input channel to `out`.
     fn step(&mut self, drive_v: f64, out: &mut [f64]);
+    /// Stage slots the plant can put under the tip, numbered from 0 (0: no stage).
+    fn stage_slots(&self) -> u8 {
+        0
+    }
+    /// Moves slot `slot` (below [`Plant::stage_slots`]) under the tip, the drive held at
+    /// `drive_v`.
+    fn select_slot(&mut self, slot: u8, drive_v: f64) {
+        let _ = (slot, drive_v);
+    }
 }
 
 /// The digital twin as the plant: `deflection_v` (±10 V, 16 bit) and, when the twin has a
-/// height sensor, `measured_height_nm` (±100 µm, 24 bit).
+/// height sensor, `measured_height_nm` (±100 µm, 24 bit); a two-slot stage, slot 0 the soft
+/// sample and slot 1 the hard reference.
+///
+/// It drives the twin exactly as [`crate::sim::SimulatedSpm`] does — a fresh twin on the
+/// selected slot settled at the held drive on configure, `select` then `settle` on a slot
+/// change — so both backends give the same numbers for the same drive, configuration and seed.
 pub struct TwinPlant {
     config: TwinConfig,
     twin: Option<Twin>,
+    slot: SampleSlot,
 }
 
 impl TwinPlant {
     pub fn new(config: TwinConfig) -> Self {
-        Self { config, twin: None }
+        Self {
+            config,
+            twin: None,
+            slot: SampleSlot::Soft,
+        }
     }
 
     pub fn config(&self) -> &TwinConfig {
         &self.config
+    }
+
+    /// The slot under the tip.
+    pub fn slot(&self) -> SampleSlot {
+        self.slot
+    }
+
+    fn fresh_twin(&self, fs_hz: f64) -> Twin {
+        let mut twin = Twin::new(&self.config, fs_hz);
+        twin.select(self.slot);
+        twin
     }
 }
 
@@ -63,21 +93,37 @@ impl Plant for TwinPlant {
     }
 
     fn reset(&mut self, fs_hz: f64, drive_v: f64) {
-        let mut twin = Twin::new(&self.config, fs_hz);
+        let mut twin = self.fresh_twin(fs_hz);
         twin.settle(drive_v);
         self.twin = Some(twin);
     }
 
     fn step(&mut self, drive_v: f64, out: &mut [f64]) {
-        let twin = self
-            .twin
-            .get_or_insert_with(|| Twin::new(&self.config, 8000.0));
+        if self.twin.is_none() {
+            self.twin = Some(self.fresh_twin(8000.0));
+        }
+        let twin = self.twin.as_mut().expect("just made");
         let s = twin.step(drive_v);
         if let Some(o) = out.first_mut() {
             *o = s.deflection_v;
         }
         if let (Some(o), Some(h)) = (out.get_mut(1), s.measured_height_nm) {
             *o = h;
+        }
+    }
+
+    fn stage_slots(&self) -> u8 {
+        2
+    }
+
+    fn select_slot(&mut self, slot: u8, drive_v: f64) {
+        let Some(s) = slot_of_number(slot) else {
+            return;
+        };
+        self.slot = s;
+        if let Some(t) = self.twin.as_mut() {
+            t.select(s);
+            t.settle(drive_v);
         }
     }
 }
@@ -143,6 +189,9 @@ pub struct DeviceInfo {
     pub max_block: u16,
     pub drive_buffer: u32,
     pub model: String,
+    /// Stage slots advertised at most (`None`: all the plant has; `Some(0)`: none, as
+    /// firmware without stage support).
+    pub stage_slots: Option<u8>,
 }
 
 impl Default for DeviceInfo {
@@ -153,6 +202,7 @@ impl Default for DeviceInfo {
             max_block: 4096,
             drive_buffer: 16_384,
             model: "viscoprobe-daq-emu".into(),
+            stage_slots: None,
         }
     }
 }
@@ -202,7 +252,9 @@ impl<P: Plant> Device<P> {
             drive,
             inputs,
             model: info.model,
-            stage_slots: 0,
+            stage_slots: info
+                .stage_slots
+                .map_or(plant.stage_slots(), |n| n.min(plant.stage_slots())),
         };
         Self {
             scratch: vec![0.0; caps.inputs.len()],
@@ -354,6 +406,7 @@ impl<P: Plant> Device<P> {
                 sample_bytes: w,
                 codes,
             } => self.drive(first_sample, w, codes, out),
+            Message::SelectSlot { slot } => self.select_slot(slot, out),
             Message::Heartbeat { counter } => {
                 self.heartbeat_counter = counter;
                 out.push(Message::DeviceHeartbeat {
@@ -429,6 +482,31 @@ impl<P: Plant> Device<P> {
         self.drive.clear();
         self.state = DeviceState::Ready;
         self.ack(kind::CONFIGURE, out);
+    }
+
+    /// `SELECT_SLOT`: only while not streaming; the plant settles at the held drive.
+    fn select_slot(&mut self, slot: u8, out: &mut Vec<Message>) {
+        if matches!(self.state, DeviceState::Streaming | DeviceState::Aborting) {
+            Self::error(
+                out,
+                ErrorCode::BadState,
+                kind::SELECT_SLOT as u64,
+                "SELECT_SLOT while streaming: STOP first",
+            );
+            return;
+        }
+        let n = self.caps.stage_slots;
+        if slot >= n {
+            Self::error(
+                out,
+                ErrorCode::BadSlot,
+                n as u64,
+                format!("stage slot {slot} does not exist (the stage has {n})"),
+            );
+            return;
+        }
+        self.plant.select_slot(slot, self.last_drive_v);
+        self.ack(kind::SELECT_SLOT, out);
     }
 
     fn drive(&mut self, first: u64, w: u8, codes: Vec<i32>, out: &mut Vec<Message>) {
@@ -573,5 +651,125 @@ impl<P: Plant> Device<P> {
             });
             self.last_tx_ms = now_ms;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn configure(d: &mut Device<TwinPlant>) {
+        let cfg = Message::Configure(Configure {
+            sample_rate_hz: 8000,
+            block_len: 100,
+            channel_mask: 1,
+            retract_code: 0,
+            max_slew_codes: 0,
+            watchdog_ms: 0,
+        });
+        let out = send(d, cfg);
+        assert!(matches!(out[..], [Message::Ack { .. }]), "{out:?}");
+    }
+
+    fn configured(info: DeviceInfo) -> Device<TwinPlant> {
+        let mut d = Device::new(info, TwinPlant::new(default_twin_config()));
+        configure(&mut d);
+        d
+    }
+
+    fn send(d: &mut Device<TwinPlant>, m: Message) -> Vec<Message> {
+        let mut out = Vec::new();
+        d.handle(Ok(&m.encode()), 0, &mut out);
+        out
+    }
+
+    fn error_of(out: &[Message]) -> (u16, u64) {
+        match out {
+            [Message::Error { code, arg, .. }] => (*code, *arg),
+            _ => panic!("expected one ERROR, got {out:?}"),
+        }
+    }
+
+    #[test]
+    fn select_slot_only_while_stopped_and_only_existing_slots() {
+        let mut d = configured(DeviceInfo::default());
+        assert_eq!(d.caps().stage_slots, 2);
+        let out = send(&mut d, Message::SelectSlot { slot: 1 });
+        assert!(
+            matches!(out[..], [Message::Ack { request: kind::SELECT_SLOT, status }]
+                if status.state == DeviceState::Ready),
+            "{out:?}"
+        );
+        assert_eq!(d.plant().slot(), SampleSlot::Reference);
+        let out = send(&mut d, Message::SelectSlot { slot: 2 });
+        assert_eq!(error_of(&out), (ErrorCode::BadSlot as u16, 2));
+        assert_eq!(d.plant().slot(), SampleSlot::Reference);
+        // Busy while streaming (reported before the bad slot); streaming goes on.
+        send(&mut d, Message::Start);
+        for slot in [0, 9] {
+            let out = send(&mut d, Message::SelectSlot { slot });
+            assert_eq!(
+                error_of(&out),
+                (ErrorCode::BadState as u16, kind::SELECT_SLOT as u64)
+            );
+        }
+        assert_eq!(d.state(), DeviceState::Streaming);
+        assert_eq!(d.plant().slot(), SampleSlot::Reference);
+        send(&mut d, Message::Stop);
+        let out = send(&mut d, Message::SelectSlot { slot: 0 });
+        assert!(matches!(out[..], [Message::Ack { .. }]), "{out:?}");
+        assert_eq!(d.plant().slot(), SampleSlot::Soft);
+    }
+
+    #[test]
+    fn a_device_without_stage_advertises_none_and_refuses() {
+        let mut d = configured(DeviceInfo {
+            stage_slots: Some(0),
+            ..DeviceInfo::default()
+        });
+        assert_eq!(d.caps().stage_slots, 0);
+        let caps = Message::Caps(d.caps().clone()).encode();
+        let old_layout_len = caps.len();
+        assert_eq!(caps[old_layout_len - 1], b'u', "ends with the model text");
+        let out = send(&mut d, Message::SelectSlot { slot: 0 });
+        assert_eq!(error_of(&out), (ErrorCode::BadSlot as u16, 0));
+        assert_eq!(d.plant().slot(), SampleSlot::Soft);
+    }
+
+    /// A slot selected before CONFIGURE holds in the twin CONFIGURE starts, as in the
+    /// simulated SPM: on the reference at 4 V (base 200 nm, surface at 100 nm) the lever is
+    /// deflected by 100 nm, 1.18 V.
+    #[test]
+    fn configure_starts_the_twin_on_the_selected_slot() {
+        let mut d = Device::new(DeviceInfo::default(), TwinPlant::new(default_twin_config()));
+        let out = send(&mut d, Message::SelectSlot { slot: 1 });
+        assert!(matches!(out[..], [Message::Ack { .. }]), "{out:?}");
+        configure(&mut d);
+        assert_eq!(d.plant().slot(), SampleSlot::Reference);
+        let range = d.caps().drive.range();
+        let code = to_code(&range, 4.0);
+        send(&mut d, Message::Start);
+        send(
+            &mut d,
+            Message::Drive {
+                first_sample: 0,
+                sample_bytes: 2,
+                codes: vec![code; 100],
+            },
+        );
+        let mut out = Vec::new();
+        assert_eq!(d.produce(1, &mut out), 1);
+        let Message::Input { channels, .. } = &out[0] else {
+            panic!("{out:?}")
+        };
+        let defl_range = d.caps().inputs[0].range();
+        let mean: f64 = channels[0]
+            .1
+            .iter()
+            .map(|&c| from_code(&defl_range, c))
+            .sum::<f64>()
+            / 100.0;
+        let want = (50.0 * from_code(&range, code) - 100.0) / 85.0;
+        assert!((mean - want).abs() < 1e-3, "{mean} V, want {want} V");
     }
 }
