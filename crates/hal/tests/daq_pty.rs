@@ -6,11 +6,14 @@ use std::io::{BufRead, BufReader};
 use std::process::{Child, ChildStdin, Command, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
-use viscoprobe_hal::daq::device::{default_twin_config, Plant, TwinPlant};
+use viscoprobe_core::twin::TwinConfig;
+use viscoprobe_hal::acquire::{run_drive, Acquired};
+use viscoprobe_hal::daq::device::{default_twin_config, twin_config_from_toml, Plant, TwinPlant};
 use viscoprobe_hal::daq::protocol::{from_code, to_code};
+use viscoprobe_hal::sim::{Pacing, SimulatedSpm};
 use viscoprobe_hal::{
-    ChannelRange, HalError, HalErrorKind, InputBlock, Instrument, SerialDaq, SerialOptions,
-    StreamConfig,
+    ChannelRange, HalError, HalErrorKind, InputBlock, Instrument, SampleSlot, SerialDaq,
+    SerialOptions, StreamConfig,
 };
 
 /// Aborts the whole test process if the guard is not dropped within `secs`.
@@ -484,4 +487,187 @@ fn wait_exit(emu: &mut Emu) -> Option<i32> {
         std::thread::sleep(Duration::from_millis(10));
     }
     None
+}
+
+/// A ramp from 0 V into contact (4 V: base 200 nm; both surfaces of the default twin are at
+/// 100 nm, reached at 2 V) and a hold, ending off the block grid.
+fn approach_drive() -> Vec<f64> {
+    let mut d: Vec<f64> = (0..=3000).map(|i| 4.0 * i as f64 / 3000.0).collect();
+    d.extend(std::iter::repeat_n(4.0, 2399));
+    d
+}
+
+/// What the closed loop does around a slot change, through any backend: approach on the hard
+/// reference, retract, move the soft sample under the tip, approach it.
+fn reference_then_soft(inst: &mut dyn Instrument) -> (Acquired, Acquired) {
+    inst.configure(&StreamConfig {
+        sample_rate_hz: FS,
+        block_len: BLOCK,
+    })
+    .expect("configure");
+    let approach = approach_drive();
+    let retract: Vec<f64> = (0..=2000).map(|i| 4.0 - 4.0 * i as f64 / 2000.0).collect();
+    let run = |inst: &mut dyn Instrument, d: &[f64]| {
+        run_drive(inst, d, BLOCK, |_| {}).unwrap_or_else(|p| panic!("{}", p.error))
+    };
+    inst.select_sample(SampleSlot::Reference)
+        .expect("select the reference");
+    let on_ref = run(inst, &approach);
+    run(inst, &retract);
+    inst.select_sample(SampleSlot::Soft)
+        .expect("select the soft sample");
+    let on_soft = run(inst, &approach);
+    (on_ref, on_soft)
+}
+
+fn mean(x: &[f64]) -> f64 {
+    x.iter().sum::<f64>() / x.len() as f64
+}
+
+#[test]
+fn stage_slots_give_the_simulated_spm_physics() {
+    let _w = watchdog("stage_slots", 30);
+    let emu = Emu::spawn(&[]);
+    let mut daq = SerialDaq::open(&emu.path, opts()).expect("open");
+    assert_eq!(daq.wire_caps().stage_slots, 2);
+    assert_eq!(
+        daq.capabilities().sample_slots,
+        vec![SampleSlot::Soft, SampleSlot::Reference]
+    );
+    let (on_ref, on_soft) = reference_then_soft(&mut daq);
+    assert!(daq.stats().device_errors == 0, "{:?}", daq.stats());
+
+    // On the rigid reference the deflection is the base travel past the contact point:
+    // deflection · sensitivity = gain · drive − contact point (0 before contact), to within
+    // the detector's 1 mV noise (6 σ) and the ADC's half LSB.
+    let cfg = default_twin_config();
+    let (gain, c_nm) = (
+        cfg.actuator.gain_nm_per_v,
+        cfg.cantilever.deflection_sensitivity_nm_per_v,
+    );
+    let cp = cfg.reference.contact_point_nm;
+    let defl = &on_ref.channels[0];
+    let want: Vec<f64> = on_ref
+        .drive_v
+        .iter()
+        .map(|&v| (gain * v - cp).max(0.0) / c_nm)
+        .collect();
+    let tol = 6.0 * 1e-3 + DRIVE_RANGE.lsb_v();
+    for (i, (&got, &w)) in defl.iter().zip(&want).enumerate() {
+        assert!(
+            (got - w).abs() < tol,
+            "reference sample {i}: drive {} V, deflection {got} V, rigid {w} V",
+            on_ref.drive_v[i]
+        );
+    }
+    let hold = defl.len() - 2000..defl.len();
+    let (ref_hold, want_hold) = (mean(&defl[hold.clone()]), mean(&want[hold.clone()]));
+    assert!(
+        (ref_hold - want_hold).abs() < 1e-4,
+        "held on the reference: {ref_hold} V, rigid {want_hold} V"
+    );
+    assert!((want_hold - 100.0 / 85.0).abs() < 1e-3);
+
+    // Back on the soft sample the same drive indents it: less deflection.
+    assert_eq!(on_soft.drive_v, on_ref.drive_v);
+    let soft_hold = mean(&on_soft.channels[0][hold]);
+    eprintln!("held at 4 V: reference {ref_hold:.4} V, soft {soft_hold:.4} V");
+    assert!(
+        soft_hold < 0.9 * ref_hold,
+        "soft {soft_hold} V, reference {ref_hold} V"
+    );
+
+    // The simulated SPM, same twin configuration and seed, same calls: the same numbers,
+    // bit for bit.
+    let mut sim = SimulatedSpm::new(cfg, Pacing::Simulated);
+    let (sim_ref, sim_soft) = reference_then_soft(&mut sim);
+    assert_eq!(
+        sim_ref, on_ref,
+        "reference run differs between the backends"
+    );
+    assert_eq!(sim_soft, on_soft, "soft run differs between the backends");
+
+    // Moving the stage while streaming is refused, and the stream goes on undisturbed.
+    daq.start().unwrap();
+    daq.write_drive(&vec![0.0; 2 * BLOCK]).unwrap();
+    assert_eq!(daq.read_block().unwrap().seq, 0);
+    let e = daq.select_sample(SampleSlot::Reference).unwrap_err();
+    assert_eq!(e.kind, HalErrorKind::State, "{e}");
+    assert_eq!(daq.read_block().unwrap().seq, 1);
+    daq.stop().unwrap();
+    sim.start().unwrap();
+    assert_eq!(
+        sim.select_sample(SampleSlot::Reference).unwrap_err().kind,
+        HalErrorKind::State
+    );
+    assert_eq!(daq.stats().lost_blocks, 0);
+}
+
+#[test]
+fn firmware_without_stage_is_still_accepted() {
+    let _w = watchdog("no_stage", 30);
+    let emu = Emu::spawn(&["--stage-slots", "0"]);
+    let mut daq = open(&emu, opts());
+    assert_eq!(daq.wire_caps().stage_slots, 0);
+    assert!(daq.capabilities().sample_slots.is_empty());
+    let sent = daq.stats().frames_tx;
+    for slot in [SampleSlot::Soft, SampleSlot::Reference] {
+        let e = daq.select_sample(slot).unwrap_err();
+        assert_eq!(e.kind, HalErrorKind::Unsupported, "{e}");
+    }
+    assert_eq!(daq.stats().frames_tx, sent, "nothing sent to such firmware");
+    let (drive, _) = step_drive(3 * BLOCK);
+    let (blocks, errors) = stream(&mut daq, &drive, 5);
+    assert!(errors.is_empty() && blocks.len() == 3, "{errors:?}");
+}
+
+/// The emulator's twin is the `[twin]` table of the config file it loads, seed included (or
+/// `--seed`), so a serial run gives what the simulated SPM gives for that table: on the
+/// realistic twin (scanner mode, hysteresis, creep, drag, adhesion, coloured noise, drift,
+/// mains, detector nonlinearity, a height sensor) through the same slot changes.
+#[test]
+fn config_twin_and_seed_match_the_simulated_spm() {
+    let _w = watchdog("config_seed", 60);
+    let file = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../config/sim-realistic.toml"
+    );
+    let text = std::fs::read_to_string(file).unwrap();
+    let cfg: TwinConfig = twin_config_from_toml(&text).unwrap();
+    assert_eq!(cfg.seed, 7, "the seed of {file}'s [twin] table");
+    assert!(cfg.height_sensor.is_some());
+    let serial_run = |extra: &[&str]| {
+        let mut args = vec!["--config", file];
+        args.extend_from_slice(extra);
+        let emu = Emu::spawn(&args);
+        let mut daq = SerialDaq::open(&emu.path, opts()).expect("open");
+        reference_then_soft(&mut daq)
+    };
+    let sim_run = |seed: u64| {
+        let mut c = cfg.clone();
+        c.seed = seed;
+        reference_then_soft(&mut SimulatedSpm::new(c, Pacing::Simulated))
+    };
+    // The height sensor is a 24-bit channel on the wire (±100 µm); the simulated SPM hands it
+    // over unquantised: they agree to half an LSB, the deflection and drive bit for bit.
+    let height_lsb = 2e5 / ((1u64 << 24) - 1) as f64;
+    let same = |a: &Acquired, b: &Acquired| {
+        a.drive_v == b.drive_v
+            && a.channels[0] == b.channels[0]
+            && a.channels[1]
+                .iter()
+                .zip(&b.channels[1])
+                .all(|(x, y)| (x - y).abs() <= 0.5 * height_lsb + 1e-9)
+    };
+    let serial = serial_run(&[]);
+    let sim = sim_run(7);
+    assert!(same(&serial.0, &sim.0), "reference run, seed 7");
+    assert!(same(&serial.1, &sim.1), "soft run, seed 7");
+    assert!(!same(&serial.1, &sim_run(1).1), "the seed matters");
+    let serial3 = serial_run(&["--seed", "3"]);
+    let sim3 = sim_run(3);
+    assert!(
+        same(&serial3.0, &sim3.0) && same(&serial3.1, &sim3.1),
+        "--seed 3"
+    );
 }

@@ -13,10 +13,13 @@
 
 use super::frame::{encode_frame, FrameDecoder, FrameError};
 use super::protocol::{
-    from_code, sample_bytes, to_code, Caps, Configure, ErrorCode, Message, Status, PROTOCOL_VERSION,
+    from_code, sample_bytes, slot_number, slot_of_number, to_code, Caps, Configure, ErrorCode,
+    Message, Status, PROTOCOL_VERSION,
 };
 use crate::error::{HalError, HalErrorKind};
-use crate::instrument::{Capabilities, InputBlock, InputChannel, Instrument, StreamConfig};
+use crate::instrument::{
+    Capabilities, InputBlock, InputChannel, Instrument, SampleSlot, StreamConfig,
+};
 use serde::Serialize;
 use std::collections::VecDeque;
 use std::io::{self, Read, Write};
@@ -31,7 +34,8 @@ pub struct SerialOptions {
     pub read_timeout: Duration,
     /// Longest wait for a write to be accepted by the port.
     pub write_timeout: Duration,
-    /// Longest wait for a command's answer (`HELLO`, `CONFIGURE`, `START`, `STOP`, `ABORT`).
+    /// Longest wait for a command's answer (`HELLO`, `CONFIGURE`, `START`, `STOP`, `ABORT`,
+    /// `SELECT_SLOT`).
     pub command_timeout: Duration,
     /// The host sends a `HEARTBEAT` when it sent nothing for this long.
     pub heartbeat: Duration,
@@ -391,6 +395,7 @@ impl SerialDaq {
             Some(ErrorCode::BadFrame) => HalErrorKind::Corrupted,
             Some(ErrorCode::Watchdog) => HalErrorKind::SafetyLimit,
             Some(ErrorCode::Version) => HalErrorKind::VersionMismatch,
+            Some(ErrorCode::BadSlot) => HalErrorKind::Unsupported,
             _ => HalErrorKind::Protocol,
         };
         if matches!(kind, HalErrorKind::SafetyLimit) {
@@ -551,7 +556,7 @@ impl Instrument for SerialDaq {
                 })
                 .collect(),
             max_block: c.max_block as usize,
-            sample_slots: Vec::new(),
+            sample_slots: (0..c.stage_slots).filter_map(slot_of_number).collect(),
         }
     }
 
@@ -713,6 +718,33 @@ impl Instrument for SerialDaq {
 
     fn last_drive(&self) -> f64 {
         self.last_drive
+    }
+
+    /// `SELECT_SLOT`, acknowledged within the command timeout. Refused here, without asking
+    /// the device, when the device has no such slot (`Unsupported`; firmware without a stage
+    /// advertises none) or while streaming (`State`: the command would cost input blocks).
+    fn select_sample(&mut self, slot: SampleSlot) -> Result<(), HalError> {
+        if self.port.is_none() {
+            return Err(err(HalErrorKind::Disconnected, "port is closed"));
+        }
+        let n = slot_number(slot);
+        if n >= self.caps.stage_slots {
+            return Err(err(
+                HalErrorKind::Unsupported,
+                format!(
+                    "the device at {} has {} stage slot(s); {slot:?} is slot {n}",
+                    self.path, self.caps.stage_slots
+                ),
+            ));
+        }
+        if self.running {
+            return Err(err(
+                HalErrorKind::State,
+                "stop streaming before moving the stage",
+            ));
+        }
+        self.command(&Message::SelectSlot { slot: n })?;
+        Ok(())
     }
 }
 
