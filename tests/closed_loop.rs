@@ -137,3 +137,22 @@ fn abort_mid_run_keeps_data_and_retracts() {
     assert!(rec.len() > 8000);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// The paper's Sec. III-B variant: the hard-sample deflection predicted from the reference
+/// calibration instead of measured. On the ideal (linear) actuator it reaches the truth too.
+#[test]
+fn predicted_reference_on_a_linear_actuator() {
+    let path = root().join("config/sim-pdms.toml");
+    let (mut cfg, _) = SimConfigFile::load(&path).unwrap();
+    cfg.run.reference = viscoprobe_daemon::config::ReferenceMode::Predicted;
+    let dir = std::env::temp_dir().join(format!("vp-loop-pred-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let cancel = AtomicBool::new(false);
+    let j = run_measurement(&cfg, "", &dir, &cancel, &mut |_| {})
+        .expect("run completes")
+        .to_json();
+    assert_eq!(j["converged"], true);
+    check_estimates(&j, 2.0);
+    let _ = std::fs::remove_dir_all(&dir);
+}

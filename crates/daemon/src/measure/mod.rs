@@ -208,6 +208,23 @@ fn run_inner(
         ref_app.detector_cubic_std = Some(sk);
     }
     let cubic = ref_app.detector_cubic_per_v2.unwrap_or(0.0);
+    let ref_model = if plan.reference == ReferenceMode::Predicted {
+        let np_ref = (plan.duration_s / plan.periods as f64 * fs).round() as usize;
+        let shape = broadband_shape(plan, fs, np_ref)?;
+        let mid = 0.5 * (ref_app.contact_drive_v + ref_app.target_drive_v);
+        let amp = 0.1 * (ref_app.target_drive_v - ref_app.contact_drive_v);
+        let drive: Vec<f64> = shape.iter().map(|x| mid + amp * x).collect();
+        let r = play(s, &drive, plan.periods)?;
+        let (avg, _) = period_average(&r.deflection[r.start..], np_ref, plan.periods);
+        Some(ReferenceModel {
+            plant: learn_plant(&drive, &avg, &drive, fs),
+            dc_drive_v: mid,
+            dc_deflection_v: avg.iter().sum::<f64>() / np_ref as f64,
+            slope_v_per_v: ref_app.slope_v_per_v,
+        })
+    } else {
+        None
+    };
     let expected_slope = t.actuator.gain_nm_per_v / c_nm;
     report.calibration.reference = Some(ref_app);
     report.calibration.sensitivity_ratio = ref_app.slope_v_per_v / expected_slope;
@@ -235,35 +252,10 @@ fn run_inner(
         message: "measuring the drive → deflection response in contact".into(),
     });
     let np_cal = (plan.duration_s / plan.periods as f64 * fs).round() as usize;
-    let cal_lines: Vec<DesignLine> = {
-        let (lo, hi) = (plan.band_hz[0].max(1.0), plan.band_hz[1].min(0.45 * fs));
-        let grid = fs / np_cal as f64;
-        let mut f: Vec<f64> = (0..60)
-            .map(|i| ((lo * (hi / lo).powf(i as f64 / 59.0)) / grid).round() * grid)
-            .collect();
-        f.dedup();
-        f.into_iter()
-            .filter(|x| *x > 0.0)
-            .map(|freq_hz| DesignLine {
-                freq_hz,
-                power_frac: 1.0,
-            })
-            .collect()
-    };
-    let cal = synthesize_lines(
-        &cal_lines,
-        fs,
-        np_cal as f64 / fs,
-        1,
-        &SynthConfig {
-            level: Level::Rms(1.0),
-            ..SynthConfig::default()
-        },
-    )?;
+    let cal = broadband_shape(plan, fs, np_cal)?;
     // 0.3 of the planned force rms, through the static slope.
     let cal_rms_v = 0.3 * plan.force_rms_nn * 1e-9 * volts_per_newton / app.slope_v_per_v.max(1e-9);
     let cal_drive: Vec<f64> = cal
-        .samples
         .iter()
         .map(|x| app.target_drive_v + x * cal_rms_v)
         .collect();
@@ -414,7 +406,17 @@ fn run_inner(
                 r
             }
             ReferenceMode::Predicted => {
-                bail!("run.reference = \"predicted\" is not implemented yet; use \"measured\"")
+                let model = ref_model.as_ref().expect("built in the calibration");
+                Played {
+                    drive: drive
+                        .iter()
+                        .copied()
+                        .cycle()
+                        .take(np * (plan.periods + 1))
+                        .collect(),
+                    deflection: model.predict(&drive, plan.periods + 1, fs),
+                    start: np,
+                }
             }
         };
 
@@ -519,6 +521,63 @@ fn run_inner(
         }
     }
     Ok(())
+}
+
+/// One period of a unit-rms multisine with 60 log-spaced lines over the band: the broadband
+/// probe of the calibrations.
+fn broadband_shape(plan: &crate::config::RunPlan, fs: f64, np: usize) -> anyhow::Result<Vec<f64>> {
+    let (lo, hi) = (plan.band_hz[0].max(1.0), plan.band_hz[1].min(0.45 * fs));
+    let grid = fs / np as f64;
+    let mut f: Vec<f64> = (0..60)
+        .map(|i| ((lo * (hi / lo).powf(i as f64 / 59.0)) / grid).round() * grid)
+        .collect();
+    f.dedup();
+    let lines: Vec<DesignLine> = f
+        .into_iter()
+        .filter(|x| *x > 0.0)
+        .map(|freq_hz| DesignLine {
+            freq_hz,
+            power_frac: 1.0,
+        })
+        .collect();
+    let synth = SynthConfig {
+        level: Level::Rms(1.0),
+        ..SynthConfig::default()
+    };
+    Ok(synthesize_lines(&lines, fs, np as f64 / fs, 1, &synth)?.samples)
+}
+
+/// The hard reference's drive → deflection response: the paper's Sec. III-B predicts the
+/// hard-sample deflection of any drive from it instead of measuring it.
+struct ReferenceModel {
+    plant: Vec<(f64, Complex64)>,
+    dc_drive_v: f64,
+    dc_deflection_v: f64,
+    slope_v_per_v: f64,
+}
+
+impl ReferenceModel {
+    /// Predicted reference deflection for `periods` repetitions of one drive period.
+    fn predict(&self, drive: &[f64], periods: usize, fs: f64) -> Vec<f64> {
+        let n = drive.len();
+        let mut d = spectrum(drive);
+        let dc = d[0].re / n as f64;
+        for k in 1..n.div_ceil(2) {
+            let g = interpolate(&self.plant, k as f64 * fs / n as f64)
+                .unwrap_or(Complex64::new(self.slope_v_per_v, 0.0));
+            d[k] *= g;
+            d[n - k] = d[k].conj();
+        }
+        if n.is_multiple_of(2) {
+            d[n / 2] = Complex64::new(0.0, 0.0);
+        }
+        d[0] = Complex64::new(
+            (self.dc_deflection_v + self.slope_v_per_v * (dc - self.dc_drive_v)) * n as f64,
+            0.0,
+        );
+        let one = viscoprobe_core::miic::inverse_spectrum(&d);
+        one.iter().copied().cycle().take(n * periods).collect()
+    }
 }
 
 /// The deflections of one iteration, before any correction.
