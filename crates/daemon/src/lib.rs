@@ -5,4 +5,5 @@ pub mod cli;
 pub mod config;
 pub mod measure;
 pub mod output;
+pub mod service;
 pub mod simrun;

@@ -3,6 +3,7 @@
 
 use clap::{Parser, Subcommand};
 
+pub mod client;
 pub mod design;
 pub mod reproduce;
 pub mod run;
@@ -28,6 +29,18 @@ pub enum Command {
     /// Design a D-optimal multisine for a prior model (band, exclusions, level, preload) and
     /// print its lines, certificate, predicted CRLB and crest factor; optionally write it as CSV.
     Design(design::Args),
+    /// Submit a plan (TOML: optional `name`, `seed`, `[run]` overrides) to the viscoprobed service.
+    Submit(client::SubmitArgs),
+    /// Show the service's state: run, iteration, progress, latest estimates, queue.
+    Status(client::StatusArgs),
+    /// Hold the service at the running run's next iteration boundary (and the queue).
+    Pause(client::SocketArgs),
+    /// Continue after a pause.
+    Resume(client::SocketArgs),
+    /// Abort the running run (it retracts and keeps its data), or remove a queued one by id.
+    Abort(client::AbortArgs),
+    /// List the service's runs, or print one run's report.json with `runs ID`.
+    Runs(client::RunsArgs),
 }
 
 /// Runs the parsed command line.
@@ -37,5 +50,11 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<()> {
         Command::Run(args) => run::run(args),
         Command::Simulate(args) => simulate::run(args),
         Command::Design(args) => design::run(args),
+        Command::Submit(args) => client::submit(args),
+        Command::Status(args) => client::status(args),
+        Command::Pause(args) => client::pause(args),
+        Command::Resume(args) => client::resume(args),
+        Command::Abort(args) => client::abort(args),
+        Command::Runs(args) => client::runs(args),
     }
 }
