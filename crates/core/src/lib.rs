@@ -4,6 +4,7 @@ pub mod design;
 pub mod discrete;
 pub mod estimate;
 pub mod fisher;
+pub mod jpk;
 pub mod linalg;
 pub mod miic;
 pub mod prony;
