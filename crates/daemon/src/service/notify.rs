@@ -31,6 +31,9 @@ impl Notifier {
             return Ok(());
         };
         let sock = UnixDatagram::unbound()?;
+        // A reader that stopped reading (its queue full) must not stall the acquisition:
+        // wait a little, then drop the message.
+        sock.set_write_timeout(Some(Duration::from_millis(50)))?;
         if let Some(name) = target.strip_prefix('@') {
             use std::os::linux::net::SocketAddrExt;
             let addr = std::os::unix::net::SocketAddr::from_abstract_name(name.as_bytes())?;
