@@ -1,4 +1,5 @@
 //! The science core of viscoprobe: pure computation, no I/O.
+pub mod analysis;
 pub mod contact;
 pub mod design;
 pub mod discrete;

@@ -5,6 +5,7 @@ use clap::{Parser, Subcommand};
 
 pub mod client;
 pub mod design;
+pub mod fit;
 pub mod reproduce;
 pub mod run;
 pub mod simulate;
@@ -22,6 +23,10 @@ pub enum Command {
     /// Regenerate the paper's simulation studies and compare estimators against the truth.
     #[command(subcommand)]
     Reproduce(reproduce::ReproduceCommand),
+    /// Fit a Prony creep compliance to a recording (spec CSV + TOML) or a JPK .jpk-force file.
+    Fit(fit::FitArgs),
+    /// Convert a JPK .jpk-force file into a recording (CSV + TOML sidecar).
+    Import(fit::ImportArgs),
     /// Simulate an open-loop measurement on the simulated SPM and write it as a recording.
     Simulate(simulate::SimulateArgs),
     /// Run a closed-loop measurement from a configuration file (default config/sim-pdms.toml).
@@ -49,6 +54,8 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<()> {
         Command::Reproduce(cmd) => reproduce::run(cmd),
         Command::Run(args) => run::run(args),
         Command::Simulate(args) => simulate::run(args),
+        Command::Fit(args) => fit::run_fit(args),
+        Command::Import(args) => fit::run_import(args),
         Command::Design(args) => design::run(args),
         Command::Submit(args) => client::submit(args),
         Command::Status(args) => client::status(args),
