@@ -1,4 +1,4 @@
-//! JPK `.jpk-force` files: read a force-scan series and convert it to a [`Recording`].
+//! JPK `.jpk-force` files: read a force-scan series and convert it to a [`Recording`](crate::recording::Recording).
 //!
 //! A `.jpk-force` file is a ZIP archive of Java `.properties` headers and raw channel data:
 //!
