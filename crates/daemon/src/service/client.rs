@@ -43,10 +43,19 @@ impl Client {
 
     /// Sends one raw line and reads the reply object (whatever its `ok`).
     pub fn raw(&mut self, line: &[u8]) -> anyhow::Result<Value> {
-        self.writer.write_all(line)?;
-        self.writer.write_all(b"\n")?;
-        self.writer.flush()?;
-        match read_line_blocking(&mut self.reader, MAX_REPLY)? {
+        // A daemon that refuses the peer replies at once and closes: the write then fails,
+        // but its reply is still there to read.
+        let sent = self
+            .writer
+            .write_all(line)
+            .and_then(|_| self.writer.write_all(b"\n"))
+            .and_then(|_| self.writer.flush());
+        let read = read_line_blocking(&mut self.reader, MAX_REPLY);
+        let line = match (read, sent) {
+            (Ok(Line::Eof) | Err(_), Err(e)) => return Err(e.into()),
+            (r, _) => r?,
+        };
+        match line {
             Line::Text(t) => serde_json::from_slice(&t).context("reply is not JSON"),
             Line::TooLarge(n) => bail!("reply of {n} bytes is too large"),
             Line::Eof => bail!(
