@@ -265,6 +265,25 @@ pub fn tustin_highpass(u: &[f64], tau_s: f64, fs_hz: f64) -> Vec<f64> {
         .collect()
 }
 
+/// The first-order-hold (exact for a force linear between samples) discretisation of the
+/// high-pass `s/(s + 1/τ)` applied to `u`, from the steady state of a constant `u[0]`:
+/// `x[k] = a·x[k−1] + c·(u[k] − u[k−1])`, `a = e^{−T/τ}`, `c = τ(1 − a)/T`. The matching
+/// frequency response is [`Sampling::FirstOrderHold`]; the digital twin's material steps the same way.
+pub fn foh_highpass(u: &[f64], tau_s: f64, fs_hz: f64) -> Vec<f64> {
+    let t = 1.0 / fs_hz;
+    let a = (-t / tau_s).exp();
+    let c = tau_s * (1.0 - a) / t;
+    let mut prev_u = u.first().copied().unwrap_or(0.0);
+    let mut x = 0.0;
+    u.iter()
+        .map(|&v| {
+            x = a * x + c * (v - prev_u);
+            prev_u = v;
+            x
+        })
+        .collect()
+}
+
 /// Simulates the Tustin model of `model` from the steady state of a constant `u[0]`:
 /// `y = J0·u − Σ Ji·HPi(u)`.
 pub fn simulate_tustin(model: &PronySeries, u: &[f64], fs_hz: f64) -> Vec<f64> {

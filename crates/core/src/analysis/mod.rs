@@ -6,8 +6,9 @@
 //! reference channel where there is one (the spec's `C·(v_ref − v)`), otherwise from the
 //! actuator position (the position sensor if recorded, else the commanded drive) minus the
 //! lever's deflection. [`fit_recording`] then fits the time-domain output-error model (any
-//! excitation: multisine, ramp, hold) for a fixed number of terms or picks the order by the
-//! Bayesian information criterion.
+//! excitation: multisine, ramp, hold), discretised with a first-order hold (continuous physics
+//! under a force linear between samples), for a fixed number of terms or picks the order by
+//! the Bayesian information criterion.
 
 use crate::estimate::time_domain::{fit_time_domain, TimeFitOptions};
 use crate::estimate::{Estimate, EstimateError};
@@ -55,33 +56,47 @@ pub fn prepare(rec: &Recording) -> Result<Prepared, FitError> {
     let n = rec.len();
     let k = rec.meta.cantilever.spring_constant_n_per_m;
     let c_m = rec.meta.cantilever.deflection_sensitivity_nm_per_v * 1e-9;
-    let head = (n / 10).max(10).min(n);
-    let mut first: Vec<f64> = rec.deflection_v[..head].to_vec();
-    let baseline_v = median(&mut first);
-    let mut dev: Vec<f64> = rec.deflection_v[..head]
-        .iter()
-        .map(|v| (v - baseline_v).abs())
-        .collect();
-    let noise_v = 1.4826 * median(&mut dev);
-    let force: Vec<f64> = rec
-        .deflection_v
-        .iter()
-        .map(|v| k * c_m * (v - baseline_v))
-        .collect();
-    let fmax = force.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-    let threshold = (5.0 * k * c_m * noise_v).max(0.02 * fmax);
-    let imax = force.iter().position(|f| *f == fmax).unwrap_or(0);
-    let above = force[..=imax]
-        .iter()
-        .position(|f| *f > threshold)
-        .ok_or(FitError::NoContact {
-            noise_n: k * c_m * noise_v,
-        })?;
-    // Walk back to where the force last sat at the baseline.
-    let contact = force[..above]
-        .iter()
-        .rposition(|f| *f <= k * c_m * noise_v)
-        .map_or(above, |i| i + 1);
+    // A first baseline from the first 2 % of the record (the tip is free there in any sane
+    // recording), contact from it, then the baseline again from everything before contact.
+    let baseline_of = |upto: usize| {
+        let upto = upto.clamp(2, n);
+        let mut v: Vec<f64> = rec.deflection_v[..upto].to_vec();
+        let b = median(&mut v);
+        let mut dev: Vec<f64> = rec.deflection_v[..upto]
+            .iter()
+            .map(|x| (x - b).abs())
+            .collect();
+        (b, 1.4826 * median(&mut dev))
+    };
+    let locate =
+        |baseline_v: f64, noise_v: f64| -> Result<(usize, Vec<f64>, usize, f64), FitError> {
+            let force: Vec<f64> = rec
+                .deflection_v
+                .iter()
+                .map(|v| k * c_m * (v - baseline_v))
+                .collect();
+            let fmax = force.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            let threshold = (5.0 * k * c_m * noise_v).max(0.02 * fmax);
+            let imax = force.iter().position(|f| *f == fmax).unwrap_or(0);
+            let above =
+                force[..=imax]
+                    .iter()
+                    .position(|f| *f > threshold)
+                    .ok_or(FitError::NoContact {
+                        noise_n: k * c_m * noise_v,
+                    })?;
+            // Walk back to where the force last sat within the baseline noise.
+            let floor = k * c_m * noise_v.max(1e-12);
+            let contact = force[..above]
+                .iter()
+                .rposition(|f| *f <= floor)
+                .map_or(above, |i| i + 1);
+            Ok((contact, force, imax, threshold))
+        };
+    let (b0, s0) = baseline_of((n / 50).max(20));
+    let (c0, _, _, _) = locate(b0, s0)?;
+    let (baseline_v, noise_v) = baseline_of(c0.saturating_sub(c0 / 20).max(20));
+    let (contact, force, imax, threshold) = locate(baseline_v, noise_v)?;
     let retract_start = rec
         .meta
         .notes
@@ -204,7 +219,9 @@ pub fn fit_recording(rec: &Recording, terms: Terms) -> Result<RecordingFit, FitE
     let mut candidates = Vec::new();
     let mut last_err = None;
     for n in orders {
-        match fit_time_domain(u, y, fs, &TimeFitOptions::new(n)) {
+        let mut opts = TimeFitOptions::new(n);
+        opts.sampling = crate::discrete::Sampling::FirstOrderHold { fs_hz: fs };
+        match fit_time_domain(u, y, fs, &opts) {
             Ok(est) => {
                 let scale = (y.iter().map(|v| v * v).sum::<f64>() / n_obs).sqrt();
                 let rss = est.diagnostics.cost * scale * scale;
@@ -227,7 +244,15 @@ pub fn fit_recording(rec: &Recording, terms: Terms) -> Result<RecordingFit, FitE
             last_err.unwrap_or(EstimateError::NoStart),
         ));
     };
-    let yhat = crate::discrete::simulate_tustin(&estimate.model, u, fs);
+    let mut yhat: Vec<f64> = u.iter().map(|x| estimate.model.j0_per_pa * x).collect();
+    for t in &estimate.model.terms {
+        for (yh, x) in yhat
+            .iter_mut()
+            .zip(crate::discrete::foh_highpass(u, t.tau_s, fs))
+        {
+            *yh -= t.j_per_pa * x;
+        }
+    }
     let r: Vec<f64> = y.iter().zip(&yhat).map(|(a, b)| a - b).collect();
     let rss: f64 = r.iter().map(|v| v * v).sum();
     let lag1 = r.windows(2).map(|w| w[0] * w[1]).sum::<f64>() / rss.max(1e-300);

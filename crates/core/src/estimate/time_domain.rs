@@ -10,7 +10,7 @@
 use super::lm::{self, Evaluation, LmOptions};
 use super::start::{grid_starts, log_grid};
 use super::{check_finite, Diagnostics, Estimate, EstimateError, Method};
-use crate::discrete::tustin_highpass;
+use crate::discrete::{foh_highpass, tustin_highpass, Sampling};
 use crate::linalg::{rcond_sym, spd_inverse, SINGULAR_RCOND};
 use crate::prony::PronySeries;
 use nalgebra::{DMatrix, DVector};
@@ -19,6 +19,11 @@ use nalgebra::{DMatrix, DVector};
 #[derive(Debug, Clone)]
 pub struct TimeFitOptions {
     pub order: usize,
+    /// How the model is discretised: Tustin (the paper's simulations) or first-order hold
+    /// (continuous physics under a force linear between samples: real data, the twin).
+    /// `Continuous` is treated as first-order hold; the rate inside is ignored (the fit's
+    /// `fs_hz` is used).
+    pub sampling: Sampling,
     pub grid_size: usize,
     pub starts: usize,
     pub extra_start: Option<PronySeries>,
@@ -29,6 +34,7 @@ impl TimeFitOptions {
     pub fn new(order: usize) -> Self {
         Self {
             order,
+            sampling: Sampling::Tustin { fs_hz: 0.0 },
             grid_size: 16,
             starts: 6,
             extra_start: None,
@@ -74,6 +80,10 @@ pub fn fit_time_domain(
     let scale = (y.iter().map(|v| v * v).sum::<f64>() / len as f64)
         .sqrt()
         .max(1e-300);
+    let highpass = |x: &[f64], tau: f64, fs: f64| match opts.sampling {
+        Sampling::Tustin { .. } => tustin_highpass(x, tau, fs),
+        Sampling::FirstOrderHold { .. } | Sampling::Continuous => foh_highpass(x, tau, fs),
+    };
     let eval = |p: &[f64]| -> Evaluation {
         if p.iter().any(|v| !v.is_finite() || v.abs() > 700.0) {
             return None;
@@ -87,9 +97,9 @@ pub fn fit_time_domain(
         const H: f64 = 1e-5;
         for i in 0..n {
             let (ji, tau) = (p[1 + i].exp(), p[1 + n + i].exp());
-            let hp = tustin_highpass(u, tau, fs_hz);
-            let hp_up = tustin_highpass(u, tau * H.exp(), fs_hz);
-            let hp_dn = tustin_highpass(u, tau * (-H).exp(), fs_hz);
+            let hp = highpass(u, tau, fs_hz);
+            let hp_up = highpass(u, tau * H.exp(), fs_hz);
+            let hp_dn = highpass(u, tau * (-H).exp(), fs_hz);
             for t in 0..len {
                 yhat[t] -= ji * hp[t];
                 jac[(t, 1 + i)] = ji * hp[t] / scale;
@@ -106,12 +116,7 @@ pub fn fit_time_domain(
     let j0_col: Vec<f64> = u.iter().map(|v| v / scale).collect();
     let columns: Vec<Vec<f64>> = taus
         .iter()
-        .map(|&t| {
-            tustin_highpass(u, t, fs_hz)
-                .iter()
-                .map(|v| -v / scale)
-                .collect()
-        })
+        .map(|&t| highpass(u, t, fs_hz).iter().map(|v| -v / scale).collect())
         .collect();
     let mut starts: Vec<Vec<f64>> = grid_starts(&target, &j0_col, &columns, &taus, n, opts.starts)
         .into_iter()
