@@ -370,18 +370,36 @@ fn status_line(g: &Inner) -> String {
 pub async fn worker(shared: Arc<Shared>) {
     loop {
         shared.beat();
+        // Taken from the queue and made current under one lock: a run is never in neither.
         let next = {
             let mut g = shared.lock();
             if g.shutting_down {
                 break;
             }
-            if g.pause_requested {
+            let q = if g.pause_requested {
                 None
             } else {
                 g.queue.pop_front()
-            }
+            };
+            q.map(|q| {
+                let cancel = Arc::new(AtomicBool::new(false));
+                g.current = Some(CurrentRun {
+                    id: q.id.clone(),
+                    dir: q.dir.clone(),
+                    cancel: cancel.clone(),
+                    stage: "starting".into(),
+                    iteration: 0,
+                    max_iterations: q.plan.run.max_iterations,
+                    order: q.plan.run.order,
+                    miic: None,
+                    estimate: None,
+                    holding: false,
+                    started: Instant::now(),
+                });
+                (q, cancel)
+            })
         };
-        let Some(q) = next else {
+        let Some((q, cancel)) = next else {
             tokio::select! {
                 _ = shared.wake.notified() => {}
                 _ = tokio::time::sleep(Duration::from_millis(500)) => {}
@@ -389,7 +407,7 @@ pub async fn worker(shared: Arc<Shared>) {
             continue;
         };
         let s = shared.clone();
-        if let Err(e) = tokio::task::spawn_blocking(move || execute(&s, q)).await {
+        if let Err(e) = tokio::task::spawn_blocking(move || execute(&s, q, cancel)).await {
             tracing::error!(error = %e, "the run's thread panicked");
             shared.lock().current = None;
         }
@@ -398,29 +416,8 @@ pub async fn worker(shared: Arc<Shared>) {
 }
 
 /// Runs one queued run to its end on this (blocking) thread.
-fn execute(shared: &Shared, q: QueuedRun) {
+fn execute(shared: &Shared, q: QueuedRun, cancel: Arc<AtomicBool>) {
     let cfg = q.plan.apply(&shared.cfg.sim);
-    let cancel = Arc::new(AtomicBool::new(false));
-    {
-        let mut g = shared.lock();
-        if g.shutting_down {
-            g.queue.push_front(q);
-            return;
-        }
-        g.current = Some(CurrentRun {
-            id: q.id.clone(),
-            dir: q.dir.clone(),
-            cancel: cancel.clone(),
-            stage: "starting".into(),
-            iteration: 0,
-            max_iterations: cfg.run.max_iterations,
-            order: cfg.run.order,
-            miic: None,
-            estimate: None,
-            holding: false,
-            started: Instant::now(),
-        });
-    }
     let span = tracing::info_span!("run", run = %q.id);
     let _enter = span.enter();
     tracing::info!(dir = %q.dir.display(), seed = cfg.twin.seed, max_iterations = cfg.run.max_iterations, "run started");
