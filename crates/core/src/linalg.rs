@@ -35,3 +35,11 @@ pub fn rcond_sym(m: &DMatrix<f64>) -> f64 {
         min / max
     }
 }
+
+/// Reciprocal condition of a symmetric matrix after scaling it to unit diagonal: how well a
+/// Gauss–Newton matrix separates the parameters, whatever their units.
+pub fn scaled_rcond(m: &DMatrix<f64>) -> f64 {
+    let n = m.nrows();
+    let d: Vec<f64> = (0..n).map(|i| m[(i, i)].max(1e-300).sqrt()).collect();
+    rcond_sym(&DMatrix::from_fn(n, n, |i, j| m[(i, j)] / (d[i] * d[j])))
+}

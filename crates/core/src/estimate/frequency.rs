@@ -14,10 +14,10 @@
 //! information: its inverse is the covariance, and at the truth it is the Cramér–Rao bound.
 
 use super::lm::{self, Evaluation, LmOptions};
-use super::start::{grid_starts, log_grid};
+use super::start::{grid_starts, log_grid, with_prior};
 use super::{check_finite, Diagnostics, Estimate, EstimateError, Method};
 use crate::discrete::Sampling;
-use crate::linalg::{rcond_sym, spd_inverse, SINGULAR_RCOND};
+use crate::linalg::{scaled_rcond, spd_inverse, SINGULAR_RCOND};
 use crate::prony::PronySeries;
 use nalgebra::{DMatrix, DVector};
 use rustfft::num_complex::Complex64;
@@ -441,18 +441,11 @@ pub fn fit_spectra(
         .iter()
         .map(|&t| stack(&|i| -lines[i].u * opts.sampling.term(t, lines[i].freq_hz).0))
         .collect();
-    let mut starts: Vec<Vec<f64>> = grid_starts(&target, &j0_col, &columns, &taus, n, opts.starts)
-        .into_iter()
-        .map(|s| s.log_params)
-        .collect();
-    if let Some(prior) = &opts.extra_start {
-        if prior.order() == n && prior.is_physical() {
-            starts.push(prior.to_vec().iter().map(|v| v.ln()).collect());
-        }
-    }
-    if starts.is_empty() {
-        return Err(EstimateError::NoStart);
-    }
+    let starts = with_prior(
+        grid_starts(&target, &j0_col, &columns, &taus, n, opts.starts),
+        opts.extra_start.as_ref(),
+        n,
+    )?;
     let best = lm::best_of(&starts, eval, opts.lm)
         .map_err(|(iterations, cost)| EstimateError::NoConvergence { iterations, cost })?;
     let rcond = scaled_rcond(&best.jtj);
@@ -501,12 +494,6 @@ pub fn fit_spectra(
         cov,
         diagnostics,
     ))
-}
-
-fn scaled_rcond(m: &DMatrix<f64>) -> f64 {
-    let n = m.nrows();
-    let d: Vec<f64> = (0..n).map(|i| m[(i, i)].max(1e-300).sqrt()).collect();
-    rcond_sym(&DMatrix::from_fn(n, n, |i, j| m[(i, j)] / (d[i] * d[j])))
 }
 
 /// Cramér–Rao bound (relative, log-parameters) of the lines in `spectra` at `model`, with the

@@ -73,6 +73,23 @@ pub fn grid_starts(
     best
 }
 
+/// The log-parameter starts of a fit: the grid's, plus a prior (or ARX) model when it has the
+/// right order and is physical. An empty set is [`EstimateError::NoStart`].
+pub fn with_prior(
+    grid: Vec<Start>,
+    prior: Option<&crate::prony::PronySeries>,
+    order: usize,
+) -> Result<Vec<Vec<f64>>, super::EstimateError> {
+    let mut starts: Vec<Vec<f64>> = grid.into_iter().map(|s| s.log_params).collect();
+    if let Some(p) = prior.filter(|p| p.order() == order && p.is_physical()) {
+        starts.push(p.to_vec().iter().map(|v| v.ln()).collect());
+    }
+    if starts.is_empty() {
+        return Err(super::EstimateError::NoStart);
+    }
+    Ok(starts)
+}
+
 fn insert_best(best: &mut Vec<Start>, s: Start, keep: usize) {
     let pos = best.partition_point(|b| b.cost <= s.cost);
     if pos < keep {

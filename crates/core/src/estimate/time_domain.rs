@@ -8,10 +8,10 @@
 //! output noise (the diagnostics report the lag-1 residual correlation to check that).
 
 use super::lm::{self, Evaluation, LmOptions};
-use super::start::{grid_starts, log_grid};
+use super::start::{grid_starts, log_grid, with_prior};
 use super::{check_finite, Diagnostics, Estimate, EstimateError, Method};
 use crate::discrete::{foh_highpass, tustin_highpass, Sampling};
-use crate::linalg::{rcond_sym, spd_inverse, SINGULAR_RCOND};
+use crate::linalg::{scaled_rcond, spd_inverse, SINGULAR_RCOND};
 use crate::prony::PronySeries;
 use nalgebra::{DMatrix, DVector};
 
@@ -118,26 +118,14 @@ pub fn fit_time_domain(
         .iter()
         .map(|&t| highpass(u, t, fs_hz).iter().map(|v| -v / scale).collect())
         .collect();
-    let mut starts: Vec<Vec<f64>> = grid_starts(&target, &j0_col, &columns, &taus, n, opts.starts)
-        .into_iter()
-        .map(|s| s.log_params)
-        .collect();
-    if let Some(prior) = &opts.extra_start {
-        if prior.order() == n && prior.is_physical() {
-            starts.push(prior.to_vec().iter().map(|v| v.ln()).collect());
-        }
-    }
-    if starts.is_empty() {
-        return Err(EstimateError::NoStart);
-    }
+    let starts = with_prior(
+        grid_starts(&target, &j0_col, &columns, &taus, n, opts.starts),
+        opts.extra_start.as_ref(),
+        n,
+    )?;
     let best = lm::best_of(&starts, eval, opts.lm)
         .map_err(|(iterations, cost)| EstimateError::NoConvergence { iterations, cost })?;
-    let d: Vec<f64> = (0..n_params)
-        .map(|i| best.jtj[(i, i)].max(1e-300).sqrt())
-        .collect();
-    let rcond = rcond_sym(&DMatrix::from_fn(n_params, n_params, |i, j| {
-        best.jtj[(i, j)] / (d[i] * d[j])
-    }));
+    let rcond = scaled_rcond(&best.jtj);
     if rcond < SINGULAR_RCOND {
         return Err(EstimateError::IllConditioned { rcond });
     }
