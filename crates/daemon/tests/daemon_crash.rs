@@ -20,6 +20,15 @@ fn sigkill_mid_run_then_restart_marks_interrupted_and_keeps_data() {
     d.signal("KILL");
     d.wait_exit(Duration::from_secs(5));
     let before = read_recordings(&run);
+    // Raw blocks were appended as they arrived: everything up to the last complete line
+    // parses, and it covers at least every recorded sample (plus calibration, approach, …).
+    let raw = raw_block_rows(&run);
+    let recorded = recorded_samples(&run);
+    eprintln!("after the kill: raw-blocks.csv has {raw} complete rows; recordings hold {recorded} samples");
+    assert!(
+        raw >= recorded,
+        "{raw} raw rows < {recorded} recorded samples"
+    );
     let report = |dir: &std::path::Path| -> serde_json::Value {
         serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap()
     };
@@ -45,6 +54,10 @@ fn sigkill_mid_run_then_restart_marks_interrupted_and_keeps_data() {
     let r2 = d.wait_result(&id2, Duration::from_secs(30));
     assert_eq!(r2["status"], "completed", "{}", r2["error"]);
     assert_eq!(r2["retracted"], true);
+    let run2 = d.runs_dir().join(&id2);
+    let (raw2, rec2) = (raw_block_rows(&run2), recorded_samples(&run2));
+    eprintln!("a completed run: {raw2} raw rows, {rec2} recorded samples");
+    assert!(raw2 >= rec2 && rec2 > 0);
     let runs = d.request(r#"{"cmd":"runs"}"#);
     let statuses: Vec<String> = runs["runs"]
         .as_array()

@@ -5,7 +5,7 @@
 //! fault never costs the data already acquired.
 
 use crate::error::{HalError, HalErrorKind};
-use crate::instrument::Instrument;
+use crate::instrument::{InputBlock, Instrument};
 
 /// Blocks of drive kept queued ahead of the reads.
 const AHEAD_BLOCKS: usize = 3;
@@ -57,6 +57,18 @@ pub fn run_drive_cancellable(
     drive: &[f64],
     block_len: usize,
     mut on_block: impl FnMut(usize),
+    cancel: &dyn Fn() -> bool,
+) -> Result<Acquired, Box<PartialAcquisition>> {
+    run_drive_blocks(inst, drive, block_len, |_, n| on_block(n), cancel)
+}
+
+/// [`run_drive_cancellable`] whose `on_block` also sees each block as read (padding
+/// included: it was output), e.g. to log raw data as it arrives.
+pub fn run_drive_blocks(
+    inst: &mut dyn Instrument,
+    drive: &[f64],
+    block_len: usize,
+    mut on_block: impl FnMut(&InputBlock, usize),
     cancel: &dyn Fn() -> bool,
 ) -> Result<Acquired, Box<PartialAcquisition>> {
     let mut acq = Acquired::default();
@@ -113,7 +125,7 @@ pub fn run_drive_cancellable(
             dst.extend_from_slice(src);
         }
         acq.drive_v.extend_from_slice(&block.drive_v);
-        on_block(acq.drive_v.len());
+        on_block(&block, acq.drive_v.len());
     }
     if let Err(e) = inst.stop() {
         return Err(fail(e, acq));

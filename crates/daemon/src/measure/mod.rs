@@ -18,7 +18,7 @@ use rustfft::num_complex::Complex64;
 use serde::Serialize;
 use session::{Approach, Session};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, AtomicU64};
 use viscoprobe_core::design::{
     synth::synthesize_lines, DesignConfig, DesignLine, DesignLoop, Exclusions, Level, LoopConfig,
     LoopStep, MainsExclusion, SynthConfig,
@@ -100,6 +100,18 @@ pub fn run_measurement(
     cancel: &AtomicBool,
     on_event: &mut dyn FnMut(&Event),
 ) -> anyhow::Result<RunReport> {
+    run_measurement_with(cfg, config_text, dir, cancel, on_event, None)
+}
+
+/// [`run_measurement`] that bumps `heartbeat` once per block read from the instrument.
+pub fn run_measurement_with(
+    cfg: &SimConfigFile,
+    config_text: &str,
+    dir: &Path,
+    cancel: &AtomicBool,
+    on_event: &mut dyn FnMut(&Event),
+    heartbeat: Option<&AtomicU64>,
+) -> anyhow::Result<RunReport> {
     let started = std::time::Instant::now();
     let fs = cfg.instrument.sample_rate_hz;
     let block = cfg.instrument.block_len;
@@ -145,11 +157,21 @@ pub fn run_measurement(
         spring_constant_n_per_m: k,
         sensitivity_nm_per_v: c_nm,
         streamed_s: 0.0,
+        blocks: None,
+        heartbeat,
     };
     s.inst.configure(&StreamConfig {
         sample_rate_hz: fs,
         block_len: block,
     })?;
+    let names: Vec<String> = s
+        .inst
+        .capabilities()
+        .inputs
+        .into_iter()
+        .map(|c| c.name)
+        .collect();
+    s.blocks = Some(session::BlockLog::create(dir, &names)?);
     let mut report = RunReport::new(cfg, dir);
     let result = run_inner(cfg, &mut s, dir, &mut report, on_event);
     // Whatever happened: retract, and write what we have.
@@ -158,6 +180,14 @@ pub fn run_measurement(
     report.measurement_time_s = s.streamed_s;
     report.wall_time_s = started.elapsed().as_secs_f64();
     report.safety = s.inst.stats();
+    if let Some(l) = s.blocks.as_mut() {
+        l.sync();
+        if let Some(e) = &l.error {
+            report
+                .warnings
+                .push(format!("raw blocks not fully logged: {e}"));
+        }
+    }
     if let Err(e) = &result {
         report.status = if cancel.load(std::sync::atomic::Ordering::Relaxed) {
             "aborted".into()

@@ -1,10 +1,92 @@
 //! Instrument operations of a measurement: streaming drive sequences, ramps, approach,
 //! stage switches and the hard-reference calibration. Blocking; cancellable between blocks.
 
-use anyhow::{anyhow, bail};
-use std::sync::atomic::{AtomicBool, Ordering};
-use viscoprobe_hal::acquire::{run_drive_cancellable, Acquired};
-use viscoprobe_hal::{Guarded, Instrument, SampleSlot};
+use anyhow::{anyhow, bail, Context};
+use std::fmt::Write as _;
+use std::io::Write as _;
+use std::path::Path;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+use viscoprobe_hal::acquire::{run_drive_blocks, Acquired};
+use viscoprobe_hal::{Guarded, InputBlock, Instrument, SampleSlot};
+
+/// Raw blocks appended to `raw-blocks.csv` as they arrive: one write per block (so a crash
+/// loses at most the block being written), fsync'd at most every [`BlockLog::SYNC_EVERY`] of
+/// wall time and at the end of every stream (fsync per block would slow simulated runs).
+pub struct BlockLog {
+    file: std::fs::File,
+    line: String,
+    last_sync: Instant,
+    /// The first write error (later blocks are not logged; the run goes on).
+    pub error: Option<String>,
+    pub samples: u64,
+}
+
+impl BlockLog {
+    pub const FILE: &'static str = "raw-blocks.csv";
+    pub const SYNC_EVERY: Duration = Duration::from_millis(100);
+
+    /// Creates `dir/raw-blocks.csv` with its header `sample,drive_v,<channels>`.
+    pub fn create(dir: &Path, channels: &[String]) -> anyhow::Result<Self> {
+        let path = dir.join(Self::FILE);
+        let mut file = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&path)
+            .with_context(|| format!("creating {}", path.display()))?;
+        let mut header = String::from("sample,drive_v");
+        for c in channels {
+            header.push(',');
+            header.push_str(c);
+        }
+        header.push('\n');
+        file.write_all(header.as_bytes())
+            .and_then(|_| file.sync_all())
+            .with_context(|| format!("writing {}", path.display()))?;
+        // The new directory entry itself.
+        if let Ok(d) = std::fs::File::open(dir) {
+            let _ = d.sync_all();
+        }
+        Ok(Self {
+            file,
+            line: String::new(),
+            last_sync: Instant::now(),
+            error: None,
+            samples: 0,
+        })
+    }
+
+    /// Appends one block (one `write`), syncing if the last sync is old enough.
+    pub fn append(&mut self, b: &InputBlock) {
+        if self.error.is_some() {
+            return;
+        }
+        self.line.clear();
+        for i in 0..b.drive_v.len() {
+            let _ = write!(self.line, "{},{}", b.first_sample + i as u64, b.drive_v[i]);
+            for c in &b.channels {
+                let _ = write!(self.line, ",{}", c.get(i).copied().unwrap_or(f64::NAN));
+            }
+            self.line.push('\n');
+        }
+        if let Err(e) = self.file.write_all(self.line.as_bytes()) {
+            self.error = Some(format!("{}: {e}", Self::FILE));
+            return;
+        }
+        self.samples += b.drive_v.len() as u64;
+        if self.last_sync.elapsed() >= Self::SYNC_EVERY {
+            self.sync();
+        }
+    }
+
+    pub fn sync(&mut self) {
+        if let Err(e) = self.file.sync_data() {
+            self.error
+                .get_or_insert(format!("{}: fsync: {e}", Self::FILE));
+        }
+        self.last_sync = Instant::now();
+    }
+}
 
 /// The instrument of a run behind its safety layer, with what the run learned about it.
 pub struct Session<'a> {
@@ -19,6 +101,11 @@ pub struct Session<'a> {
     pub sensitivity_nm_per_v: f64,
     /// Simulated seconds streamed so far (all slots, ramps included).
     pub streamed_s: f64,
+    /// Where raw blocks go as they arrive, if anywhere.
+    pub blocks: Option<BlockLog>,
+    /// Bumped once per block read: a heartbeat of the acquisition itself (the service's
+    /// watchdog checks it moves while a run streams).
+    pub heartbeat: Option<&'a AtomicU64>,
 }
 
 /// What an approach found.
@@ -58,9 +145,24 @@ impl Session<'_> {
     /// (callers persist what they need before the next call).
     pub fn stream(&mut self, drive: &[f64]) -> anyhow::Result<Acquired> {
         let cancel = self.cancel;
-        let res = run_drive_cancellable(&mut self.inst, drive, self.block_len, |_| {}, &|| {
-            cancel.load(Ordering::Relaxed)
-        });
+        let (log, beat) = (&mut self.blocks, self.heartbeat);
+        let res = run_drive_blocks(
+            &mut self.inst,
+            drive,
+            self.block_len,
+            |b, _| {
+                if let Some(l) = log.as_mut() {
+                    l.append(b);
+                }
+                if let Some(h) = beat {
+                    h.fetch_add(1, Ordering::Relaxed);
+                }
+            },
+            &|| cancel.load(Ordering::Relaxed),
+        );
+        if let Some(l) = self.blocks.as_mut() {
+            l.sync();
+        }
         self.streamed_s += drive.len() as f64 / self.fs_hz;
         res.map_err(|p| {
             anyhow!(p.error).context(format!(

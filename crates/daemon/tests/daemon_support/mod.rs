@@ -265,3 +265,47 @@ pub fn read_recordings(dir: &Path) -> usize {
 
 /// A plan that runs all 8 iterations (about 2 s): long enough to interrupt.
 pub const LONG_PLAN: &str = "name = \"long\"\n[run]\nmax_iterations = 8\nrel_change_tol = 1e-9\n";
+
+/// Samples in every `iter-NN.csv` recording of a run directory.
+pub fn recorded_samples(dir: &Path) -> usize {
+    let mut n = 0;
+    for e in std::fs::read_dir(dir).unwrap().flatten() {
+        let name = e.file_name().into_string().unwrap();
+        if name.starts_with("iter-") && name.ends_with(".csv") {
+            let csv = std::fs::File::open(e.path()).unwrap();
+            let side = std::fs::File::open(e.path().with_extension("toml")).unwrap();
+            n += viscoprobe_core::recording::Recording::read(csv, side)
+                .unwrap()
+                .deflection_v
+                .len();
+        }
+    }
+    n
+}
+
+/// Parses `raw-blocks.csv` line by line up to its last complete line: checks the header
+/// (`sample,drive_v,…`) and that every row has its columns as numbers; returns the rows.
+pub fn raw_block_rows(dir: &Path) -> usize {
+    let text = std::fs::read_to_string(dir.join("raw-blocks.csv")).unwrap();
+    let complete = &text[..text.rfind('\n').map_or(0, |i| i + 1)];
+    let mut lines = complete.lines();
+    let header: Vec<&str> = lines.next().expect("a header").split(',').collect();
+    assert!(
+        header.len() >= 3 && header[0] == "sample" && header[1] == "drive_v",
+        "header {header:?}"
+    );
+    let mut n = 0;
+    for (i, l) in lines.enumerate() {
+        let cols: Vec<&str> = l.split(',').collect();
+        assert_eq!(cols.len(), header.len(), "line {}: {l}", i + 2);
+        cols[0]
+            .parse::<u64>()
+            .unwrap_or_else(|e| panic!("line {}: {e}: {l}", i + 2));
+        for c in &cols[1..] {
+            c.parse::<f64>()
+                .unwrap_or_else(|e| panic!("line {}: {e}: {l}", i + 2));
+        }
+        n += 1;
+    }
+    n
+}
