@@ -39,6 +39,31 @@ fn ready_after_bind_then_watchdog_and_a_cli_run_equals_a_standalone_run() {
         d.log()
     );
     let served: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    // WATCHDOG=1 kept coming while the run streamed (the acquisition loop's per-block
+    // heartbeat feeds it then): count the pings between STATUS=running… and the next idle.
+    let (mut in_run, mut run_pings, mut saw_run) = (false, 0, false);
+    while let Some(m) = d.next_notification(Duration::from_millis(300)) {
+        for l in m.lines() {
+            if l.starts_with("STATUS=running") {
+                in_run = true;
+                saw_run = true;
+            } else if l.starts_with("STATUS=idle") && in_run {
+                in_run = false;
+            } else if l == "WATCHDOG=1" && in_run {
+                run_pings += 1;
+            }
+        }
+        if saw_run && !in_run {
+            break;
+        }
+    }
+    let wall = served["wall_time_s"].as_f64().unwrap();
+    eprintln!("{run_pings} WATCHDOG=1 during a run of {wall:.2} s wall time");
+    assert!(saw_run, "no STATUS=running seen");
+    assert!(
+        run_pings as f64 >= (wall / 0.2 - 2.0).max(1.0),
+        "only {run_pings} WATCHDOG=1 during a {wall:.2} s run"
+    );
     let alone = Command::new(CLI)
         .arg("run")
         .arg(repo_root().join("config/sim-pdms.toml"))

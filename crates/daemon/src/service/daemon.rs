@@ -208,28 +208,46 @@ async fn serve(cfg: DaemonConfig, policy: Arc<Policy>) -> anyhow::Result<()> {
     shared.beat();
     notifier.send("READY=1");
     shared.publish_status();
-    // 5. The watchdog: fed while the worker shows signs of life (its idle loop, or a run's
-    // events; a run silent for longer than run_stall_timeout_s counts as hung).
+    // 5. The watchdog: while a run is current, fed only while the acquisition loop reads
+    // blocks (its per-block counter moved within run_stall_timeout_s, which covers the
+    // estimation between streams) or the run is held by a pause; when idle, while the worker's
+    // idle loop beats.
     let dog = match (watchdog, watchdog_interval()) {
         (true, Some(every)) if notifier.enabled() => {
             tracing::info!(interval_ms = every.as_millis() as u64, "watchdog enabled");
             let shared = shared.clone();
             Some(tokio::spawn(async move {
                 let mut tick = tokio::time::interval(every);
+                let mut seen = (None::<String>, 0u64);
+                let mut progressed = std::time::Instant::now();
                 loop {
                     tick.tick().await;
-                    let running = shared.lock().current.is_some();
-                    let limit = if running {
-                        stall
-                    } else {
-                        Duration::from_secs(10)
+                    let current = shared
+                        .lock()
+                        .current
+                        .as_ref()
+                        .map(|c| (c.id.clone(), c.holding));
+                    let blocks = shared.blocks.load(std::sync::atomic::Ordering::Relaxed);
+                    let run = current.as_ref().map(|c| c.0.clone());
+                    if run != seen.0 || blocks != seen.1 {
+                        seen = (run, blocks);
+                        progressed = std::time::Instant::now();
+                    }
+                    let (alive, silent) = match &current {
+                        Some((_, true)) => (true, Duration::ZERO),
+                        Some(_) => (progressed.elapsed() < stall, progressed.elapsed()),
+                        None => (
+                            shared.since_beat() < Duration::from_secs(10),
+                            shared.since_beat(),
+                        ),
                     };
-                    if shared.since_beat() < limit {
+                    if alive {
                         shared.notifier.send("WATCHDOG=1");
                     } else {
                         tracing::error!(
-                            silent_s = shared.since_beat().as_secs_f64(),
-                            "worker shows no progress: withholding the watchdog"
+                            silent_s = silent.as_secs_f64(),
+                            running = current.is_some(),
+                            "no blocks from the instrument (or no sign of life): withholding the watchdog"
                         );
                     }
                 }

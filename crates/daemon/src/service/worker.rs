@@ -17,7 +17,7 @@ use super::notify::Notifier;
 use super::plan::{parse_plan, Plan};
 use super::protocol::ApiError;
 use super::storage;
-use crate::measure::{new_run_dir, run_measurement, Event};
+use crate::measure::{new_run_dir, run_measurement_with, Event};
 use serde_json::{json, Value};
 use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
@@ -76,6 +76,8 @@ pub struct Shared {
     pub notifier: Notifier,
     /// Milliseconds since `epoch` of the worker's last sign of life.
     beat_ms: AtomicU64,
+    /// Blocks read from the instrument by runs (bumped by the acquisition loop itself).
+    pub blocks: AtomicU64,
     epoch: Instant,
     /// The last STATUS= sent (not repeated).
     last_status: Mutex<String>,
@@ -97,6 +99,7 @@ impl Shared {
             wake: tokio::sync::Notify::new(),
             notifier,
             beat_ms: AtomicU64::new(0),
+            blocks: AtomicU64::new(0),
             epoch: Instant::now(),
             last_status: Mutex::new(String::new()),
         })
@@ -507,7 +510,14 @@ fn execute(shared: &Shared, q: QueuedRun, cancel: Arc<AtomicBool>) {
             shared.publish_status();
         }
     };
-    let result = run_measurement(&cfg, &snapshot, &q.dir, &cancel, &mut on_event);
+    let result = run_measurement_with(
+        &cfg,
+        &snapshot,
+        &q.dir,
+        &cancel,
+        &mut on_event,
+        Some(&shared.blocks),
+    );
     let (status, error) = match &result {
         Ok(r) => (r.status.clone(), None),
         Err(e) => {
