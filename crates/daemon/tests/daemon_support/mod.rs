@@ -44,7 +44,14 @@ pub fn temp_dir(tag: &str) -> PathBuf {
 
 /// `config/sim-pdms.toml` with a `[service]` section pointing into `dir`.
 pub fn write_config(dir: &Path) -> PathBuf {
-    let base = std::fs::read_to_string(repo_root().join("config/sim-pdms.toml")).unwrap();
+    write_config_with(dir, "")
+}
+
+/// [`write_config`] with `instrument` (TOML lines) added to its `[instrument]` table.
+pub fn write_config_with(dir: &Path, instrument: &str) -> PathBuf {
+    let base = std::fs::read_to_string(repo_root().join("config/sim-pdms.toml"))
+        .unwrap()
+        .replacen("[instrument]\n", &format!("[instrument]\n{instrument}"), 1);
     let text = format!(
         "{base}\n[service]\nsocket_path = \"{}\"\nstate_dir = \"{}\"\n",
         dir.join("ctl.sock").display(),
@@ -69,7 +76,12 @@ impl Daemon {
     /// Starts a daemon on `dir` (which may hold a previous one's state) with a notify socket
     /// and WATCHDOG_USEC = 400 ms (pings every 200 ms).
     pub fn start(dir: &Path) -> Daemon {
-        let config = write_config(dir);
+        Self::start_with(dir, "")
+    }
+
+    /// [`Daemon::start`] with `instrument` (TOML lines) added to the `[instrument]` table.
+    pub fn start_with(dir: &Path, instrument: &str) -> Daemon {
+        let config = write_config_with(dir, instrument);
         let socket = dir.join("ctl.sock");
         let notify_path = dir.join("notify.sock");
         let _ = std::fs::remove_file(&notify_path);

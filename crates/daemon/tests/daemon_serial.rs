@@ -1,0 +1,119 @@
+//! Over the serial emulator: a disconnect mid-run fails the run with a clear reason, keeps
+//! the daemon up, and a run after reconnection works (issue #7).
+//!
+//! The daemon opens the port named by `[instrument] port` at start-up (health check) and
+//! again for every run, so "reconnection" needs no restart as long as that path leads to the
+//! board: here it is a symlink (as udev's /dev/serial/by-id/… names are) that the test points
+//! at the new emulator's pseudo-terminal.
+
+mod daemon_support;
+
+use daemon_support::*;
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::Duration;
+
+/// The emulator binary, built next to this test by `cargo test --workspace`.
+fn emulator() -> PathBuf {
+    let exe = std::env::current_exe().unwrap();
+    let bin = exe
+        .parent()
+        .and_then(|d| d.parent())
+        .unwrap()
+        .join("viscoprobe-daq-emu");
+    assert!(
+        bin.exists(),
+        "{} not built: run the workspace tests (cargo test --workspace --release) or build it with \
+         cargo build --release -p viscoprobe-hal --bin viscoprobe-daq-emu",
+        bin.display()
+    );
+    bin
+}
+
+/// Starts the emulator (it survives the daemon's health check closing the port:
+/// `--persist`); returns it and its pseudo-terminal.
+fn start_emulator(extra: &[&str]) -> (Child, String) {
+    let cfg = repo_root().join("config/sim-pdms.toml");
+    let mut emu = Command::new(emulator())
+        .arg("--config")
+        .arg(&cfg)
+        .arg("--persist")
+        .args(extra)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .expect("start the emulator");
+    let mut line = String::new();
+    BufReader::new(emu.stdout.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    let pty = line
+        .trim()
+        .strip_prefix("PTY ")
+        .expect("emulator prints its PTY path")
+        .to_string();
+    (emu, pty)
+}
+
+fn point(link: &Path, pty: &str) {
+    let _ = std::fs::remove_file(link);
+    std::os::unix::fs::symlink(pty, link).unwrap();
+}
+
+#[test]
+fn serial_disconnect_fails_the_run_clearly_and_a_run_after_reconnection_works() {
+    hard_timeout(90);
+    let dir = temp_dir("serial");
+    let link = dir.join("daq");
+    // About 870 blocks make a run: cut during calibration/approach/the first iterations.
+    let (mut emu, pty) = start_emulator(&["--disconnect-after", "300"]);
+    point(&link, &pty);
+    let d = Daemon::start_with(
+        &dir,
+        &format!("backend = \"serial\"\nport = \"{}\"\n", link.display()),
+    );
+    d.wait_ready();
+
+    let id = d.submit("name = \"cut\"\n");
+    let r = d.wait_result(&id, Duration::from_secs(30));
+    let error = r["error"].as_str().unwrap_or_default().to_string();
+    eprintln!(
+        "cut run: status {}, retracted {}, iterations {}, error: {error}",
+        r["status"], r["retracted"], r["iterations"]
+    );
+    assert_eq!(r["status"], "failed", "{r}");
+    assert!(
+        error.to_lowercase().contains("disconnect"),
+        "the reason does not name the disconnect: {error}"
+    );
+    // The actuator cannot be commanded over a dead link: the report says so (retracted
+    // false) and the reason explains why.
+    assert!(r["retracted"].is_boolean(), "{r}");
+    let _ = emu.wait();
+    // The daemon is up and idle.
+    let st = d.request(r#"{"cmd":"status"}"#);
+    assert_eq!(st["state"], "idle", "{st}");
+    assert_eq!(st["last"]["status"], "failed", "{st}");
+    let run = d.runs_dir().join(&id);
+    let raw = raw_block_rows(&run);
+    eprintln!("{raw} raw rows kept from the cut run");
+    assert!(raw > 0);
+
+    // Reconnect: a fresh board behind the same name; the next run opens it and completes.
+    let (mut emu2, pty2) = start_emulator(&[]);
+    point(&link, &pty2);
+    let id2 = d.submit("name = \"after\"\n");
+    let r2 = d.wait_result(&id2, Duration::from_secs(40));
+    eprintln!(
+        "after reconnection: status {}, retracted {}, iterations {}",
+        r2["status"], r2["retracted"], r2["iterations"]
+    );
+    assert_eq!(r2["status"], "completed", "{}", r2["error"]);
+    assert_eq!(r2["retracted"], true);
+    drop(d);
+    let _ = emu2.kill();
+    let _ = emu2.wait();
+    std::fs::remove_dir_all(&dir).unwrap();
+}
