@@ -42,7 +42,7 @@ fn start_emulator(extra: &[&str]) -> (Child, String) {
         .args(extra)
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
+        .stderr(Stdio::piped())
         .spawn()
         .expect("start the emulator");
     let mut line = String::new();
@@ -91,7 +91,22 @@ fn serial_disconnect_fails_the_run_clearly_and_a_run_after_reconnection_works() 
     // The actuator cannot be commanded over a dead link: the report says so (retracted
     // false) and the reason explains why.
     assert!(r["retracted"].is_boolean(), "{r}");
+    // The board retracts on its own when it loses its host: the emulator reports where its
+    // drive ended (the configured retract value, 0 V).
     let _ = emu.wait();
+    let mut log = String::new();
+    std::io::Read::read_to_string(&mut emu.stderr.take().unwrap(), &mut log).unwrap();
+    eprintln!("emulator: {log}");
+    let ended = log
+        .split("drive ramped to the retract value ")
+        .nth(1)
+        .and_then(|t| t.split_whitespace().next())
+        .and_then(|v| v.parse::<f64>().ok())
+        .unwrap_or_else(|| panic!("the emulator did not report a retract: {log}"));
+    assert!(
+        ended.abs() < 1e-3,
+        "drive ended at {ended} V, not retracted"
+    );
     // The daemon is up and idle.
     let st = d.request(r#"{"cmd":"status"}"#);
     assert_eq!(st["state"], "idle", "{st}");

@@ -315,7 +315,13 @@ fn serve(master: RawFd, args: &Args, twin: viscoprobe_core::twin::TwinConfig) ->
         if let Some(n) = args.faults.disconnect_after {
             if blocks_total >= n {
                 flush(master, &mut outbuf, true);
-                eprintln!("viscoprobe-daq-emu: disconnecting after {blocks_total} blocks");
+                // The board loses its host, as on a pulled cable: it retracts on its own (the
+                // host cannot command anything over a dead link).
+                device.abort();
+                eprintln!(
+                    "viscoprobe-daq-emu: disconnecting after {blocks_total} blocks; host lost, drive ramped to the retract value {:.4} V",
+                    device.last_drive_v()
+                );
                 return 0;
             }
         }

@@ -292,6 +292,11 @@ impl<P: Plant> Device<P> {
         self.last_code
     }
 
+    /// The drive being output, V.
+    pub fn last_drive_v(&self) -> f64 {
+        self.last_drive_v
+    }
+
     /// Input blocks sent since START.
     pub fn blocks_sent(&self) -> u64 {
         self.seq
