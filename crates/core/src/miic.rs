@@ -207,7 +207,7 @@ pub fn miic_step_with_plant(
 
 /// Linear interpolation in log-frequency of a complex response known at ascending points;
 /// constant beyond the ends.
-fn interpolate_log(p: &[(f64, Complex64)], f: f64) -> Option<Complex64> {
+pub fn interpolate_log(p: &[(f64, Complex64)], f: f64) -> Option<Complex64> {
     let first = p.first()?;
     let last = p.last()?;
     if f <= first.0 {

@@ -29,7 +29,9 @@ use viscoprobe_core::estimate::frequency::{
     PeriodicSpectra,
 };
 use viscoprobe_core::estimate::Estimate;
-use viscoprobe_core::miic::{miic_step_with_plant, spectrum, tracking_error, MiicConfig};
+use viscoprobe_core::miic::{
+    interpolate_log, miic_step_with_plant, spectrum, tracking_error, MiicConfig,
+};
 use viscoprobe_core::prony::PronySeries;
 use viscoprobe_core::recording::{Drive, Recording};
 use viscoprobe_core::twin::SampleSlot;
@@ -410,7 +412,7 @@ fn run_inner(
                 break;
             }
             let dense = merge_plant(&plant, &learn_plant(&drive, &avg, &desired, fs));
-            let lookup = |k: usize| interpolate(&dense, k as f64 * fs / np as f64);
+            let lookup = |k: usize| interpolate_log(&dense, k as f64 * fs / np as f64);
             drive = miic_step_with_plant(
                 &drive,
                 &desired,
@@ -593,7 +595,7 @@ impl ReferenceModel {
         let mut d = spectrum(drive);
         let dc = d[0].re / n as f64;
         for k in 1..n.div_ceil(2) {
-            let g = interpolate(&self.plant, k as f64 * fs / n as f64)
+            let g = interpolate_log(&self.plant, k as f64 * fs / n as f64)
                 .unwrap_or(Complex64::new(self.slope_v_per_v, 0.0));
             d[k] *= g;
             d[n - k] = d[k].conj();
@@ -755,7 +757,7 @@ fn initial_drive(
     let mut d = spectrum(desired);
     for kk in 1..n.div_ceil(2) {
         let f = kk as f64 * fs / n as f64;
-        let g = interpolate(plant, f).unwrap_or(Complex64::new(slope, 0.0));
+        let g = interpolate_log(plant, f).unwrap_or(Complex64::new(slope, 0.0));
         d[kk] /= g;
         d[n - kk] = d[kk].conj();
     }
@@ -764,23 +766,6 @@ fn initial_drive(
     }
     d[0] = Complex64::new(dc * n as f64, 0.0);
     viscoprobe_core::miic::inverse_spectrum(&d)
-}
-
-fn interpolate(p: &[(f64, Complex64)], f: f64) -> Option<Complex64> {
-    if p.is_empty() {
-        return None;
-    }
-    if f <= p[0].0 {
-        return Some(p[0].1);
-    }
-    if f >= p[p.len() - 1].0 {
-        return Some(p[p.len() - 1].1);
-    }
-    let i = p.partition_point(|q| q.0 < f);
-    let (f0, g0) = p[i - 1];
-    let (f1, g1) = p[i];
-    let w = (f.ln() - f0.ln()) / (f1.ln() - f0.ln());
-    Some(g0 * (1.0 - w) + g1 * w)
 }
 
 /// An iteration's acquisition as a spec recording, with the twin as truth.
