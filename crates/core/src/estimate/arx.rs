@@ -7,7 +7,7 @@
 //! paper's Table I, Case 2. The covariance is the least-squares one, mapped by the delta
 //! method; it describes the scatter, not that bias.
 
-use super::{check_finite, Diagnostics, Estimate, EstimateError, IntervalKind, Method, Z95};
+use super::{check_signals, Diagnostics, Estimate, EstimateError, IntervalKind, Method, Z95};
 use crate::discrete::{d2c_by_pole, DiscreteTf};
 use nalgebra::{DMatrix, DVector};
 
@@ -36,14 +36,7 @@ pub fn arx_least_squares(
     if n == 0 {
         return Err(EstimateError::Order(0));
     }
-    if u.len() != y.len() {
-        return Err(EstimateError::LengthMismatch {
-            input: u.len(),
-            output: y.len(),
-        });
-    }
-    check_finite(u)?;
-    check_finite(y)?;
+    check_signals(u, y)?;
     let n_theta = 2 * n + 1;
     let rows = u.len().saturating_sub(n);
     if rows < 2 * n_theta {

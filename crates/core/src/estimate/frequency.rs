@@ -13,11 +13,11 @@
 //! data were sampled. At the minimum `JᵀJ` of the normalised residuals is the Fisher
 //! information: its inverse is the covariance, and at the truth it is the Cramér–Rao bound.
 
-use super::lm::{self, Evaluation, LmOptions};
+use super::lm::{Evaluation, LmOptions};
 use super::start::{grid_starts, log_grid, with_prior};
-use super::{check_finite, Diagnostics, Estimate, EstimateError, Method};
+use super::{check_signals, solve_from_starts, Diagnostics, Estimate, EstimateError, Method};
 use crate::discrete::Sampling;
-use crate::linalg::{scaled_rcond, spd_inverse, SINGULAR_RCOND};
+use crate::linalg::spd_inverse;
 use crate::prony::PronySeries;
 use nalgebra::{DMatrix, DVector};
 use rustfft::num_complex::Complex64;
@@ -104,14 +104,7 @@ pub fn periodic_spectra(
     selection: &LineSelection,
     smoothing_bins: usize,
 ) -> Result<PeriodicSpectra, EstimateError> {
-    if u.len() != y.len() {
-        return Err(EstimateError::LengthMismatch {
-            input: u.len(),
-            output: y.len(),
-        });
-    }
-    check_finite(u)?;
-    check_finite(y)?;
+    check_signals(u, y)?;
     if periods == 0 || !u.len().is_multiple_of(periods) || u.len() / periods < 4 {
         return Err(EstimateError::NotWholePeriods {
             samples: u.len(),
@@ -446,12 +439,7 @@ pub fn fit_spectra(
         opts.extra_start.as_ref(),
         n,
     )?;
-    let best = lm::best_of(&starts, eval, opts.lm)
-        .map_err(|(iterations, cost)| EstimateError::NoConvergence { iterations, cost })?;
-    let rcond = scaled_rcond(&best.jtj);
-    if rcond < SINGULAR_RCOND {
-        return Err(EstimateError::IllConditioned { rcond });
-    }
+    let (best, rcond) = solve_from_starts(&starts, eval, opts.lm)?;
     let dof = (2 * m).saturating_sub(n_params);
     let mut diagnostics = Diagnostics {
         cost: best.cost,

@@ -218,6 +218,34 @@ pub enum EstimateError {
     Order(usize),
 }
 
+/// Checks an input/output pair: same length, every value finite.
+pub(crate) fn check_signals(u: &[f64], y: &[f64]) -> Result<(), EstimateError> {
+    if u.len() != y.len() {
+        return Err(EstimateError::LengthMismatch {
+            input: u.len(),
+            output: y.len(),
+        });
+    }
+    check_finite(u)?;
+    check_finite(y)
+}
+
+/// Levenberg–Marquardt from every start, the best converged result kept, and refused when
+/// its Gauss–Newton matrix cannot separate the parameters.
+pub(crate) fn solve_from_starts(
+    starts: &[Vec<f64>],
+    eval: impl Fn(&[f64]) -> lm::Evaluation,
+    opts: lm::LmOptions,
+) -> Result<(lm::LmResult, f64), EstimateError> {
+    let best = lm::best_of(starts, eval, opts)
+        .map_err(|(iterations, cost)| EstimateError::NoConvergence { iterations, cost })?;
+    let rcond = crate::linalg::scaled_rcond(&best.jtj);
+    if rcond < crate::linalg::SINGULAR_RCOND {
+        return Err(EstimateError::IllConditioned { rcond });
+    }
+    Ok((best, rcond))
+}
+
 /// Checks a signal for NaN/inf.
 pub(crate) fn check_finite(x: &[f64]) -> Result<(), EstimateError> {
     match x.iter().position(|v| !v.is_finite()) {

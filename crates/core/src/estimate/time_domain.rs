@@ -7,11 +7,11 @@
 //! log-parameters; the noise variance comes from the residuals, so the intervals assume white
 //! output noise (the diagnostics report the lag-1 residual correlation to check that).
 
-use super::lm::{self, Evaluation, LmOptions};
+use super::lm::{Evaluation, LmOptions};
 use super::start::{grid_starts, log_grid, with_prior};
-use super::{check_finite, Diagnostics, Estimate, EstimateError, Method};
+use super::{check_signals, solve_from_starts, Diagnostics, Estimate, EstimateError, Method};
 use crate::discrete::{foh_highpass, tustin_highpass, Sampling};
-use crate::linalg::{scaled_rcond, spd_inverse, SINGULAR_RCOND};
+use crate::linalg::spd_inverse;
 use crate::prony::PronySeries;
 use nalgebra::{DMatrix, DVector};
 
@@ -54,14 +54,7 @@ pub fn fit_time_domain(
     if n == 0 {
         return Err(EstimateError::Order(0));
     }
-    if u.len() != y.len() {
-        return Err(EstimateError::LengthMismatch {
-            input: u.len(),
-            output: y.len(),
-        });
-    }
-    check_finite(u)?;
-    check_finite(y)?;
+    check_signals(u, y)?;
     let n_params = 2 * n + 1;
     let len = u.len();
     if len < 4 * n_params {
@@ -123,12 +116,7 @@ pub fn fit_time_domain(
         opts.extra_start.as_ref(),
         n,
     )?;
-    let best = lm::best_of(&starts, eval, opts.lm)
-        .map_err(|(iterations, cost)| EstimateError::NoConvergence { iterations, cost })?;
-    let rcond = scaled_rcond(&best.jtj);
-    if rcond < SINGULAR_RCOND {
-        return Err(EstimateError::IllConditioned { rcond });
-    }
+    let (best, rcond) = solve_from_starts(&starts, eval, opts.lm)?;
     let dof = len - n_params;
     let s2 = best.cost / dof as f64;
     let cov = spd_inverse(&best.jtj).ok_or(EstimateError::IllConditioned { rcond })? * s2;
