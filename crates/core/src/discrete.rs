@@ -144,17 +144,9 @@ pub fn d2c(tf: &DiscreteTf) -> Result<PronySeries, D2cError> {
 /// For physical models (all poles in (−1, 1)) the two orders agree; for unphysical ones this
 /// order stays fixed under small perturbations, which the ARX delta method needs.
 pub fn d2c_by_pole(tf: &DiscreteTf) -> Result<PronySeries, D2cError> {
-    let n = tf.a.len() - 1;
-    if n == 0 {
-        return Err(D2cError::Degree(0));
-    }
-    let a0 = tf.a[0];
-    let a: Vec<f64> = tf.a.iter().map(|c| c / a0).collect();
-    let mut b: Vec<f64> = tf.b.iter().map(|c| c / a0).collect();
-    b.resize(n + 1, 0.0);
-    let roots = poly_roots(&a);
-    let mut poles = Vec::with_capacity(n);
-    for r in &roots {
+    let (a, b) = normalised(tf)?;
+    let mut poles = Vec::with_capacity(a.len() - 1);
+    for r in poly_roots(&a) {
         if r.im.abs() > 1e-9 * r.norm().max(1e-300) {
             return Err(D2cError::ComplexPole { re: r.re, im: r.im });
         }
@@ -163,31 +155,47 @@ pub fn d2c_by_pole(tf: &DiscreteTf) -> Result<PronySeries, D2cError> {
         }
         poles.push(r.re);
     }
-    for i in 0..n {
-        for j in 0..i {
-            if (poles[i] - poles[j]).abs() < 1e-12 {
-                return Err(D2cError::RepeatedPole(poles[i]));
-            }
-        }
+    poles.sort_by(|x, y| y.total_cmp(x));
+    if let Some(w) = poles.windows(2).find(|w| (w[0] - w[1]).abs() < 1e-12) {
+        return Err(D2cError::RepeatedPole(w[0]));
     }
-    let t = 1.0 / tf.fs_hz;
-    let j0 = poly_eval(&b, 1.0) / poly_eval(&a, 1.0);
-    let da = poly_derivative(&a);
-    poles.sort_by(|a, b| b.total_cmp(a));
     let terms = poles
         .iter()
         .map(|&z| {
-            let residue = poly_eval(&b, z) / poly_eval(&da, z);
+            let t = term_at(&a, &b, tf.fs_hz, Complex64::new(z, 0.0));
             PronyTerm {
-                j_per_pa: 2.0 * residue / (1.0 - z * z),
-                tau_s: t * (1.0 + z) / (2.0 * (1.0 - z)),
+                j_per_pa: t.j.re,
+                tau_s: t.tau.re,
             }
         })
         .collect();
     Ok(PronySeries {
-        j0_per_pa: j0,
+        j0_per_pa: poly_eval(&b, 1.0) / poly_eval(&a, 1.0),
         terms,
     })
+}
+
+/// Denominator made monic, numerator padded to its degree.
+fn normalised(tf: &DiscreteTf) -> Result<(Vec<f64>, Vec<f64>), D2cError> {
+    let n = tf.a.len().saturating_sub(1);
+    if n == 0 {
+        return Err(D2cError::Degree(0));
+    }
+    let a0 = tf.a[0];
+    let a: Vec<f64> = tf.a.iter().map(|c| c / a0).collect();
+    let mut b: Vec<f64> = tf.b.iter().map(|c| c / a0).collect();
+    b.resize(n + 1, 0.0);
+    Ok((a, b))
+}
+
+/// The Prony term of the pole `z` of `B/A` (the module's re-derived eq. 5): residue
+/// `r = B(z)/A′(z)`, `J = 2r/(1 − z²)`, `τ = T(1 + z)/(2(1 − z))`.
+fn term_at(a: &[f64], b: &[f64], fs_hz: f64, z: Complex64) -> ComplexTerm {
+    let residue = poly_eval_c(b, z) / poly_eval_c(&poly_derivative(a), z);
+    ComplexTerm {
+        j: 2.0 * residue / (1.0 - z * z),
+        tau: (1.0 + z) / (2.0 * fs_hz * (1.0 - z)),
+    }
 }
 
 /// One partial-fraction term of a discrete model whose pole may be complex.
@@ -202,27 +210,12 @@ pub struct ComplexTerm {
 /// parameters" come out complex: there is no physical creep compliance behind them. Used
 /// to show what the paper's method reports when noise turns its poles complex.
 pub fn d2c_complex(tf: &DiscreteTf) -> Result<(f64, Vec<ComplexTerm>), D2cError> {
-    let n = tf.a.len() - 1;
-    if n == 0 {
-        return Err(D2cError::Degree(0));
-    }
-    let a0 = tf.a[0];
-    let a: Vec<f64> = tf.a.iter().map(|c| c / a0).collect();
-    let mut b: Vec<f64> = tf.b.iter().map(|c| c / a0).collect();
-    b.resize(n + 1, 0.0);
-    let t = 1.0 / tf.fs_hz;
-    let da = poly_derivative(&a);
+    let (a, b) = normalised(tf)?;
     let mut roots = poly_roots(&a);
     roots.sort_by(|x, y| y.re.total_cmp(&x.re).then(y.im.total_cmp(&x.im)));
     let terms = roots
         .iter()
-        .map(|&z| {
-            let residue = poly_eval_c(&b, z) / poly_eval_c(&da, z);
-            ComplexTerm {
-                j: 2.0 * residue / (1.0 - z * z),
-                tau: t * (1.0 + z) / (2.0 * (1.0 - z)),
-            }
-        })
+        .map(|&z| term_at(&a, &b, tf.fs_hz, z))
         .collect();
     Ok((poly_eval(&b, 1.0) / poly_eval(&a, 1.0), terms))
 }
