@@ -3,6 +3,7 @@
 #![allow(dead_code)]
 
 use serde_json::Value;
+use std::io::{BufRead, BufReader};
 use std::os::unix::net::UnixDatagram;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -320,4 +321,46 @@ pub fn raw_block_rows(dir: &Path) -> usize {
         n += 1;
     }
     n
+}
+
+/// The emulator binary, built next to this test by `cargo test --workspace`.
+pub fn emulator() -> PathBuf {
+    let exe = std::env::current_exe().unwrap();
+    let bin = exe
+        .parent()
+        .and_then(|d| d.parent())
+        .unwrap()
+        .join("viscoprobe-daq-emu");
+    assert!(
+        bin.exists(),
+        "{} not built: run the workspace tests (cargo test --workspace --release) or build it with \
+         cargo build --release -p viscoprobe-hal --bin viscoprobe-daq-emu",
+        bin.display()
+    );
+    bin
+}
+
+/// Starts the emulator on `config/sim-pdms.toml` with `extra` flags (a daemon needs
+/// `--persist`: its health check closes the port); returns it and its pseudo-terminal.
+pub fn start_emulator(extra: &[&str]) -> (Child, String) {
+    let cfg = repo_root().join("config/sim-pdms.toml");
+    let mut emu = Command::new(emulator())
+        .arg("--config")
+        .arg(&cfg)
+        .args(extra)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("start the emulator");
+    let mut line = String::new();
+    BufReader::new(emu.stdout.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    let pty = line
+        .trim()
+        .strip_prefix("PTY ")
+        .expect("emulator prints its PTY path")
+        .to_string();
+    (emu, pty)
 }
