@@ -17,6 +17,7 @@
 pub mod analysis;
 pub mod contact;
 pub mod design;
+pub mod diagnose;
 pub mod discrete;
 pub mod estimate;
 pub mod fisher;

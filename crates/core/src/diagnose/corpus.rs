@@ -1,0 +1,1 @@
+//! The concealed-effect corpus (being written).
