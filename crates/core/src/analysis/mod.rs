@@ -1,18 +1,38 @@
 //! From a recording to a Prony fit: the offline path of `viscoprobe fit`.
 //!
-//! [`prepare`] turns a [`Recording`] into the linear pair (u, y) over the in-contact window:
-//! the deflection baseline from the free approach, the contact point where the force leaves
-//! the baseline noise, the force `F = K·C·(v − v₀)`, and the indentation — from the hard
-//! reference channel where there is one (the spec's `C·(v_ref − v)`), otherwise from the
-//! actuator position (the position sensor if recorded, else the commanded drive) minus the
-//! lever's deflection. [`fit_recording`] then fits the time-domain output-error model (any
-//! excitation: multisine, ramp, hold), discretised with a first-order hold (continuous physics
-//! under a force linear between samples), for a fixed number of terms or picks the order by
-//! the Bayesian information criterion.
+//! [`prepare`] turns a [`Recording`] into the linear pair (u, y) over the in-contact window,
+//! from the samples alone (no `[notes]`, no `[truth]`: a third-party file has neither):
+//!
+//! - the deflection baseline from the free approach: a constant, plus a tilt linear in the
+//!   drive position when the approach shows one beyond its noise (virtual deflection, as on
+//!   JPK heads; a tilt that is not significant is not extrapolated into the contact);
+//! - the contact point where the force leaves the baseline noise, walked back to where it
+//!   last sat within it;
+//! - the end of the window where the final unloading begins (the drive falling at the retract
+//!   speed toward the loss of contact): Lee–Radok holds while the contact grows or holds;
+//! - the force `F = K·C·(v − baseline)` and the indentation — from the hard reference channel
+//!   where there is one (the spec's `C·(v_ref − v)`), otherwise from the actuator position
+//!   (the position sensor if recorded, else the commanded drive) minus the lever's deflection.
+//!
+//! [`fit_recording`] then picks the estimator for the excitation: when the in-contact drive
+//! is periodic (whole periods found in the drive itself, [`periodic`]) the frequency-domain
+//! maximum-likelihood fit on whole periods, with the noise measured between periods;
+//! otherwise the time-domain output-error fit over the whole window. Both are discretised
+//! with a first-order hold (continuous physics under a force linear between samples). The
+//! order is fixed or chosen by the Bayesian information criterion; orders whose retardation
+//! times fall outside what the record resolves are refused for selection.
 
+pub mod periodic;
+
+use crate::discrete::{foh_highpass, Sampling};
+use crate::estimate::frequency::{
+    fit_spectra, periodic_spectra, remove_linear_drift, FrequencyFitOptions, LineSelection,
+};
 use crate::estimate::time_domain::{fit_time_domain, TimeFitOptions};
-use crate::estimate::{Estimate, EstimateError};
+use crate::estimate::{Estimate, EstimateError, Method};
+use crate::prony::PronySeries;
 use crate::recording::Recording;
+use periodic::{detect_periodic, PeriodicRun};
 use thiserror::Error;
 
 /// Why a recording could not be fitted.
@@ -36,12 +56,22 @@ pub struct Prepared {
     pub fs_hz: f64,
     /// Sample index of the contact point and end of the fitted window (exclusive).
     pub contact_index: usize,
+    /// Where the force last sat within the baseline noise; equals `contact_index` unless the
+    /// contact point was searched for by fit (a slow rise out of the noise).
+    pub contact_walkback_index: usize,
     pub end_index: usize,
-    /// Free-lever deflection, V, and its noise, V rms.
+    /// Free-lever deflection at the contact point, V, and its noise, V rms.
     pub baseline_v: f64,
     pub baseline_noise_v: f64,
+    /// Baseline tilt, V per nm of drive (0 when the approach shows none beyond its noise).
+    pub baseline_tilt_v_per_nm: f64,
     /// Where the indentation came from: `reference`, `measured_height` or `drive`.
     pub indentation_source: &'static str,
+    /// Over the window: recorded time, s; force, N; indentation, m; drive (its own units).
+    pub time_s: Vec<f64>,
+    pub force_n: Vec<f64>,
+    pub indentation_m: Vec<f64>,
+    pub drive: Vec<f64>,
 }
 
 fn median(x: &mut [f64]) -> f64 {
@@ -49,93 +79,159 @@ fn median(x: &mut [f64]) -> f64 {
     x[x.len() / 2]
 }
 
-/// Baseline, contact point, force and indentation; the window ends where a segment table in
-/// `[notes]` says the retract starts (Lee–Radok holds while the contact grows or holds), or at
-/// the force maximum's last in-contact sample otherwise.
+/// `v ≈ a + b·x` over the free approach; `b` only when it stands 4σ clear of zero.
+#[derive(Debug, Clone, Copy)]
+struct Baseline {
+    a: f64,
+    b: f64,
+    x0: f64,
+    noise: f64,
+}
+
+impl Baseline {
+    fn at(&self, x: f64) -> f64 {
+        self.a + self.b * (x - self.x0)
+    }
+
+    fn fit(v: &[f64], x: &[f64], tilt: bool) -> Self {
+        let n = v.len() as f64;
+        let xm = x.iter().sum::<f64>() / n;
+        let vm = v.iter().sum::<f64>() / n;
+        let sxx: f64 = x.iter().map(|t| (t - xm).powi(2)).sum();
+        let sxv: f64 = x.iter().zip(v).map(|(t, w)| (t - xm) * (w - vm)).sum();
+        let b = if tilt && sxx > 0.0 { sxv / sxx } else { 0.0 };
+        let mut res: Vec<f64> = x
+            .iter()
+            .zip(v)
+            .map(|(t, w)| w - vm - b * (t - xm))
+            .collect();
+        let mut abs: Vec<f64> = res.iter().map(|r| r.abs()).collect();
+        let noise = 1.4826 * median(&mut abs);
+        let b_sigma = if sxx > 0.0 {
+            noise / sxx.sqrt()
+        } else {
+            f64::INFINITY
+        };
+        if b != 0.0 && b.abs() < 4.0 * b_sigma {
+            return Self::fit(v, x, false);
+        }
+        let a = if b == 0.0 { median(&mut res) + vm } else { vm };
+        Self {
+            a,
+            b,
+            x0: xm,
+            noise,
+        }
+    }
+}
+
+/// Baseline, contact point, window, force and indentation of a recording (see the module
+/// documentation).
 pub fn prepare(rec: &Recording) -> Result<Prepared, FitError> {
     let n = rec.len();
     let k = rec.meta.cantilever.spring_constant_n_per_m;
     let c_m = rec.meta.cantilever.deflection_sensitivity_nm_per_v * 1e-9;
-    // A first baseline from the first 2 % of the record (the tip is free there in any sane
-    // recording), contact from it, then the baseline again from everything before contact.
-    let baseline_of = |upto: usize| {
-        let upto = upto.clamp(2, n);
-        let mut v: Vec<f64> = rec.deflection_v[..upto].to_vec();
-        let b = median(&mut v);
-        let mut dev: Vec<f64> = rec.deflection_v[..upto]
-            .iter()
-            .map(|x| (x - b).abs())
-            .collect();
-        (b, 1.4826 * median(&mut dev))
+    let drive = rec.drive.values();
+    let defl = &rec.deflection_v;
+    if n < 60 {
+        return Err(FitError::TooShort(n));
+    }
+    let baseline_over = |upto: usize, tilt: bool| {
+        let upto = upto.clamp(20.min(n), n);
+        Baseline::fit(&defl[..upto], &drive[..upto], tilt)
     };
-    let locate =
-        |baseline_v: f64, noise_v: f64| -> Result<(usize, Vec<f64>, usize, f64), FitError> {
-            let force: Vec<f64> = rec
-                .deflection_v
-                .iter()
-                .map(|v| k * c_m * (v - baseline_v))
-                .collect();
-            let fmax = force.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-            let threshold = (5.0 * k * c_m * noise_v).max(0.02 * fmax);
-            let imax = force.iter().position(|f| *f == fmax).unwrap_or(0);
-            let above =
-                force[..=imax]
-                    .iter()
-                    .position(|f| *f > threshold)
-                    .ok_or(FitError::NoContact {
-                        noise_n: k * c_m * noise_v,
-                    })?;
-            // Walk back to where the force last sat within the baseline noise.
-            let floor = k * c_m * noise_v.max(1e-12);
-            let contact = force[..above]
-                .iter()
-                .rposition(|f| *f <= floor)
-                .map_or(above, |i| i + 1);
-            Ok((contact, force, imax, threshold))
-        };
-    let (b0, s0) = baseline_of((n / 50).max(20));
-    let (c0, _, _, _) = locate(b0, s0)?;
-    let (baseline_v, noise_v) = baseline_of(c0.saturating_sub(c0 / 20).max(20));
-    let (contact, force, imax, threshold) = locate(baseline_v, noise_v)?;
-    let retract_start = rec
-        .meta
-        .notes
-        .as_ref()
-        .and_then(|t| t.get("segments"))
-        .and_then(|s| s.as_array())
-        .and_then(|segs| {
-            segs.iter().find_map(|s| {
-                let t = s.as_table()?;
-                (t.get("kind")?.as_str()?.eq_ignore_ascii_case("retract"))
-                    .then(|| t.get("start_index")?.as_integer())?
-            })
-        })
-        .map(|i| i as usize);
-    let end = retract_start.unwrap_or_else(|| {
-        // Contact lost after the maximum; the final unloading (where the contact shrinks and
-        // Lee–Radok no longer holds) is the run of non-increasing drive that leads there.
-        let lost = force
+    // (contact, force, index of the maximum, threshold) for a baseline.
+    let locate = |bl: &Baseline| -> Result<(usize, Vec<f64>, usize, f64), FitError> {
+        let force: Vec<f64> = defl
             .iter()
-            .enumerate()
-            .skip(imax)
-            .find(|(_, f)| **f < threshold)
-            .map_or(n, |(i, _)| i);
-        let drive = rec.drive.values();
-        let mut i = lost.min(n - 1);
-        while i > contact + 1 && drive[i - 1] >= drive[i] {
-            i -= 1;
+            .zip(drive)
+            .map(|(v, x)| k * c_m * (v - bl.at(*x)))
+            .collect();
+        let fmax = force.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        let threshold = (5.0 * k * c_m * bl.noise).max(0.02 * fmax);
+        let imax = force.iter().position(|f| *f == fmax).unwrap_or(0);
+        let above =
+            force[..=imax]
+                .iter()
+                .position(|f| *f > threshold)
+                .ok_or(FitError::NoContact {
+                    noise_n: k * c_m * bl.noise,
+                })?;
+        // Walk back to where the force last sat within the baseline noise: the window starts
+        // there, at rest (the fit's initial state), so a force step at the next sample is in
+        // the window.
+        let floor = k * c_m * bl.noise.max(1e-12);
+        let contact = force[..above]
+            .iter()
+            .rposition(|f| *f <= floor)
+            .unwrap_or(above);
+        Ok((contact, force, imax, threshold))
+    };
+    // A first baseline from the first 2 % of the record, at most 256 samples (the tip is free
+    // there in any sane recording), contact from it; then the baseline again, tilt allowed, from everything
+    // before that contact, twice (a tilt moves the contact, which moves the baseline).
+    let mut bl = baseline_over((n / 50).clamp(20, 256), false);
+    let (mut contact, _, _, _) = locate(&bl)?;
+    for _ in 0..2 {
+        bl = baseline_over(contact.saturating_sub(contact / 20), true);
+        contact = locate(&bl)?.0;
+    }
+    let (walkback, force, imax, threshold) = locate(&bl)?;
+    let above = (walkback..=imax)
+        .find(|&i| force[i] > threshold)
+        .unwrap_or(walkback);
+    let end = window_end(drive, &force, walkback, imax, threshold);
+    let build = |contact: usize| build_window(rec, &bl, &force, contact, end, contact != walkback);
+    // Where the force rises slowly out of the noise (soft gels, long-range forces), the last
+    // sample within the noise band is not the contact of a Hertz contact: the contact point
+    // is then chosen, between that sample and the threshold crossing, as the one whose (u, y)
+    // a one-term viscoelastic model follows best — the contact point as a model parameter,
+    // as in a Hertz fit with a free contact point.
+    if above > walkback + CONTACT_SEARCH_MIN {
+        let steps = 24.min(above - walkback);
+        let mut best: Option<(f64, Prepared)> = None;
+        for s in 0..=steps {
+            let c = walkback + (above - walkback) * s / steps;
+            let Ok(p) = build(c) else { continue };
+            let mut opts = TimeFitOptions::new(1);
+            opts.sampling = Sampling::FirstOrderHold { fs_hz: p.fs_hz };
+            let Ok(est) = fit_time_domain(&p.u, &p.y, p.fs_hz, &opts) else {
+                continue;
+            };
+            let e = nrmse(&p.y, &simulate_foh(&est.model, &p.u, p.fs_hz));
+            if best.as_ref().is_none_or(|(b, _)| e < *b) {
+                best = Some((e, p));
+            }
         }
-        i
-    });
-    let end = end.min(n);
+        if let Some((_, mut p)) = best {
+            p.contact_walkback_index = walkback;
+            return Ok(p);
+        }
+    }
+    build(walkback)
+}
+
+/// Samples between the noise-band contact and the threshold crossing above which the contact
+/// point is searched for by fit.
+const CONTACT_SEARCH_MIN: usize = 20;
+
+fn build_window(
+    rec: &Recording,
+    bl: &Baseline,
+    force: &[f64],
+    contact: usize,
+    end: usize,
+    searched: bool,
+) -> Result<Prepared, FitError> {
+    let c_m = rec.meta.cantilever.deflection_sensitivity_nm_per_v * 1e-9;
+    let drive = rec.drive.values();
+    let defl = &rec.deflection_v;
     if end <= contact + 50 {
         return Err(FitError::TooShort(end.saturating_sub(contact)));
     }
     let (h, source): (Vec<f64>, &'static str) = if let Some(r) = &rec.reference_deflection_v {
         (
-            (contact..end)
-                .map(|i| c_m * (r[i] - rec.deflection_v[i]))
-                .collect(),
+            (contact..end).map(|i| c_m * (r[i] - defl[i])).collect(),
             "reference",
         )
     } else {
@@ -145,15 +241,23 @@ pub fn prepare(rec: &Recording) -> Result<Prepared, FitError> {
             _ => return Err(FitError::NoIndentation),
         };
         let z0 = z[contact];
+        // A searched contact sits on the slow rise out of the noise: the lever deflection
+        // reached there is not indentation.
+        let d0 = if searched {
+            defl[contact] - bl.at(drive[contact])
+        } else {
+            0.0
+        };
         (
             (contact..end)
-                .map(|i| (z[i] - z0) * 1e-9 - c_m * (rec.deflection_v[i] - baseline_v))
+                .map(|i| (z[i] - z0) * 1e-9 - c_m * (defl[i] - bl.at(drive[i]) - d0))
                 .collect(),
             src,
         )
     };
     let contact_model = rec.meta.contact();
-    let u = force[contact..end]
+    let force_n = force[contact..end].to_vec();
+    let u = force_n
         .iter()
         .map(|&f| contact_model.u_from_force(f.max(0.0)))
         .collect();
@@ -166,11 +270,50 @@ pub fn prepare(rec: &Recording) -> Result<Prepared, FitError> {
         y,
         fs_hz: rec.sample_rate_hz,
         contact_index: contact,
+        contact_walkback_index: contact,
         end_index: end,
-        baseline_v,
-        baseline_noise_v: noise_v,
+        baseline_v: bl.at(drive[contact]),
+        baseline_noise_v: bl.noise,
+        baseline_tilt_v_per_nm: match &rec.drive {
+            crate::recording::Drive::Nanometres(_) => bl.b,
+            crate::recording::Drive::Volts(_) => rec
+                .meta
+                .piezo
+                .map_or(0.0, |p| bl.b / p.gain_nm_per_v.max(f64::MIN_POSITIVE)),
+        },
         indentation_source: source,
+        time_s: rec.time_s[contact..end].to_vec(),
+        force_n,
+        indentation_m: h,
+        drive: drive[contact..end].to_vec(),
     })
+}
+
+/// End of the loading window (exclusive): contact is lost after the force maximum where the
+/// force falls below `threshold`; the final unloading (where the contact shrinks and
+/// Lee–Radok no longer holds) is the run before that in which the drive falls at a good
+/// fraction of its speed there. A record that never loses contact ends in contact.
+fn window_end(drive: &[f64], force: &[f64], contact: usize, imax: usize, threshold: f64) -> usize {
+    let n = force.len();
+    let Some(lost) = (imax..n).find(|&i| force[i] < threshold) else {
+        return n;
+    };
+    const M: usize = 5;
+    if lost < contact + 2 * M {
+        return lost;
+    }
+    let rate = |i: usize| (drive[i - M] - drive[i]) / M as f64;
+    let speed = rate(lost);
+    if speed <= 0.0 {
+        return lost;
+    }
+    let mut i = lost;
+    while i > contact + M && rate(i) >= 0.3 * speed {
+        i -= 1;
+    }
+    // The window (i − M, i] holds less than ~30 % of descent: the unloading starts near
+    // i − 0.3·M.
+    (i + 1).saturating_sub(2).max(contact + 1)
 }
 
 /// How many Prony terms to fit.
@@ -183,84 +326,351 @@ pub enum Terms {
     },
 }
 
-/// One candidate order of `--terms auto`.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// One candidate order.
+#[derive(Debug, Clone, PartialEq)]
 pub struct OrderCandidate {
     pub terms: usize,
-    /// `N·ln(RSS/N) + p·ln N`; lower is better.
+    /// Bayesian information criterion, lower is better (see [`RecordingFit::criterion`]);
+    /// NaN when the fit failed.
     pub bic: f64,
+    /// NRMSE of this order's model over the fitted samples (NaN when the fit failed).
     pub nrmse: f64,
+    /// Why this order was not eligible (failed fit, or a retardation time outside what the
+    /// record resolves); `None` when it was.
+    pub rejected: Option<String>,
+}
+
+/// Which estimator was used, decided from the drive.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FitMethod {
+    /// Periodic drive: frequency-domain maximum likelihood on whole periods.
+    FrequencyMl,
+    /// Anything else: time-domain output error over the window.
+    TimeOutputError,
+}
+
+impl FitMethod {
+    /// Stable name (`--json`'s `method`).
+    pub fn name(self) -> &'static str {
+        match self {
+            FitMethod::FrequencyMl => "frequency_domain_ml",
+            FitMethod::TimeOutputError => "time_domain_output_error",
+        }
+    }
+}
+
+/// Residual whiteness: autocorrelations and the Ljung–Box portmanteau test.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Whiteness {
+    /// Residual autocorrelation at lags 1..=`lags`.
+    pub autocorrelation: Vec<f64>,
+    /// Ljung–Box `Q = N(N+2) Σ r_k²/(N−k)` over `lags` lags.
+    pub ljung_box_q: f64,
+    /// χ²(`lags`) 95 % quantile: Q above it rejects whiteness at 5 %.
+    pub critical_95: f64,
+    pub white: bool,
+}
+
+/// Lags of the whiteness test.
+pub const WHITENESS_LAGS: usize = 20;
+/// χ²(20) 95 % quantile.
+const CHI2_20_95: f64 = 31.410_432_844_230_9;
+
+/// Ljung–Box over [`WHITENESS_LAGS`] lags.
+pub fn whiteness(r: &[f64]) -> Whiteness {
+    let n = r.len();
+    let m = r.iter().sum::<f64>() / n.max(1) as f64;
+    let c0: f64 = r.iter().map(|v| (v - m).powi(2)).sum();
+    let lags = WHITENESS_LAGS.min(n.saturating_sub(1));
+    let ac: Vec<f64> = (1..=lags)
+        .map(|l| {
+            (l..n).map(|t| (r[t] - m) * (r[t - l] - m)).sum::<f64>() / c0.max(f64::MIN_POSITIVE)
+        })
+        .collect();
+    let nf = n as f64;
+    let q = nf
+        * (nf + 2.0)
+        * ac.iter()
+            .enumerate()
+            .map(|(i, rk)| rk * rk / (nf - (i + 1) as f64))
+            .sum::<f64>();
+    Whiteness {
+        autocorrelation: ac,
+        ljung_box_q: q,
+        critical_95: CHI2_20_95,
+        white: q <= CHI2_20_95,
+    }
 }
 
 /// A fitted recording.
 #[derive(Debug, Clone)]
 pub struct RecordingFit {
     pub prepared: Prepared,
+    pub method: FitMethod,
+    /// The whole periods found in the window's drive (indices into the window), if any.
+    pub periodic: Option<PeriodicRun>,
+    /// Samples of the window the estimator used (whole periods, or all of it).
+    pub fitted: std::ops::Range<usize>,
     pub estimate: Estimate,
-    /// Normalised RMS error of the fit, `‖y − ŷ‖/‖y − ȳ‖`.
+    /// The model's output over the whole window, from the steady state at contact.
+    pub yhat: Vec<f64>,
+    /// Normalised RMS error of the fit over the fitted samples, `‖y − ŷ‖/‖y − ȳ‖`.
     pub nrmse: f64,
     /// Lag-1 autocorrelation of the residuals (≈ 0 for white residuals).
     pub residual_lag1: f64,
+    pub whiteness: Whiteness,
+    /// The order-selection criterion, as printed.
+    pub criterion: &'static str,
     pub candidates: Vec<OrderCandidate>,
+    /// The band the record resolves, Hz: from 1/(fitted duration) to the highest excited line
+    /// (periodic) or fs/10 (otherwise).
+    pub band_hz: [f64; 2],
+    /// Plain-language remarks about the analysis (not the estimator's own warnings).
+    pub notes: Vec<String>,
 }
 
-/// Fits a recording.
+/// Criterion of the time-domain path.
+pub const BIC_TIME: &str = "BIC = N·ln(RSS/N) + p·ln N (N samples, p = 2n+1 parameters)";
+/// Criterion of the frequency-domain path.
+pub const BIC_FREQUENCY: &str =
+    "BIC = V + p·ln(2L) (V the noise-weighted ML cost, L excited lines, p = 2n+1 parameters)";
+
+/// `ŷ = J0·u − Σ Ji·HP_τi(u)` with the first-order hold, from the steady state at `u[0]`.
+pub fn simulate_foh(model: &PronySeries, u: &[f64], fs_hz: f64) -> Vec<f64> {
+    let mut y: Vec<f64> = u.iter().map(|x| model.j0_per_pa * x).collect();
+    for t in &model.terms {
+        for (yh, x) in y.iter_mut().zip(foh_highpass(u, t.tau_s, fs_hz)) {
+            *yh -= t.j_per_pa * x;
+        }
+    }
+    y
+}
+
+fn nrmse(y: &[f64], yhat: &[f64]) -> f64 {
+    let m = y.iter().sum::<f64>() / y.len() as f64;
+    let syy: f64 = y.iter().map(|v| (v - m).powi(2)).sum();
+    let rss: f64 = y.iter().zip(yhat).map(|(a, b)| (a - b).powi(2)).sum();
+    (rss / syy.max(f64::MIN_POSITIVE)).sqrt()
+}
+
+/// One order's fit and its BIC.
+type OrderFit = Result<(Estimate, f64), EstimateError>;
+
+/// Fits a recording (see the module documentation).
 pub fn fit_recording(rec: &Recording, terms: Terms) -> Result<RecordingFit, FitError> {
     let prepared = prepare(rec)?;
     let (u, y, fs) = (&prepared.u, &prepared.y, prepared.fs_hz);
+    let len = u.len();
     let orders: Vec<usize> = match terms {
         Terms::Fixed(n) => vec![n],
         Terms::Auto { max } => (1..=max.max(1)).collect(),
     };
-    let ym = y.iter().sum::<f64>() / y.len() as f64;
-    let syy: f64 = y.iter().map(|v| (v - ym).powi(2)).sum();
-    let n_obs = y.len() as f64;
-    let mut best: Option<(f64, Estimate)> = None;
-    let mut candidates = Vec::new();
-    let mut last_err = None;
-    for n in orders {
-        let mut opts = TimeFitOptions::new(n);
-        opts.sampling = crate::discrete::Sampling::FirstOrderHold { fs_hz: fs };
-        match fit_time_domain(u, y, fs, &opts) {
-            Ok(est) => {
-                let scale = (y.iter().map(|v| v * v).sum::<f64>() / n_obs).sqrt();
-                let rss = est.diagnostics.cost * scale * scale;
-                let p = (2 * n + 1) as f64;
-                let bic = n_obs * (rss / n_obs).max(1e-300).ln() + p * n_obs.ln();
-                candidates.push(OrderCandidate {
-                    terms: n,
-                    bic,
-                    nrmse: (rss / syy).sqrt(),
-                });
-                if best.as_ref().is_none_or(|(b, _)| bic < *b) {
-                    best = Some((bic, est));
+    let sampling = Sampling::FirstOrderHold { fs_hz: fs };
+    let mut notes = Vec::new();
+    let periodic = detect_periodic(&prepared.drive);
+
+    // One pass of order selection over `range` with `fit_order`.
+    let select = |range: std::ops::Range<usize>,
+                  fit_order: &dyn Fn(usize) -> OrderFit|
+     -> (Vec<OrderCandidate>, Option<Estimate>, Option<EstimateError>) {
+        let span_s = range.len() as f64 / fs;
+        let mut candidates = Vec::new();
+        let mut best: Option<(f64, Estimate)> = None;
+        let mut fallback: Option<(f64, Estimate)> = None;
+        let mut last_err = None;
+        for &n in &orders {
+            match fit_order(n) {
+                Ok((est, bic)) => {
+                    let yhat = simulate_foh(&est.model, u, fs);
+                    let e = nrmse(&y[range.clone()], &yhat[range.clone()]);
+                    let out_of_range = est
+                        .model
+                        .terms
+                        .iter()
+                        .find(|t| t.tau_s > span_s || t.tau_s < 0.5 / fs);
+                    let rejected = if !est.model.is_physical() {
+                        Some("not physical: negative instantaneous compliance".to_string())
+                    } else {
+                        out_of_range.map(|t| {
+                            format!(
+                                "tau = {:.4e} s is outside what the record resolves ({:.1e} to {:.3e} s)",
+                                t.tau_s,
+                                0.5 / fs,
+                                span_s
+                            )
+                        })
+                    };
+                    candidates.push(OrderCandidate {
+                        terms: n,
+                        bic,
+                        nrmse: e,
+                        rejected: rejected.clone(),
+                    });
+                    let slot = if rejected.is_none() {
+                        &mut best
+                    } else {
+                        &mut fallback
+                    };
+                    if slot.as_ref().is_none_or(|(b, _)| bic < *b) {
+                        *slot = Some((bic, est));
+                    }
+                }
+                Err(e) => {
+                    candidates.push(OrderCandidate {
+                        terms: n,
+                        bic: f64::NAN,
+                        nrmse: f64::NAN,
+                        rejected: Some(format!("fit failed: {e}")),
+                    });
+                    last_err = Some(e);
                 }
             }
-            Err(e) => last_err = Some(e),
         }
-    }
-    let Some((_, estimate)) = best else {
-        return Err(FitError::Estimate(
-            last_err.unwrap_or(EstimateError::NoStart),
-        ));
+        let chosen = best.or(fallback).map(|b| b.1);
+        (candidates, chosen, last_err)
     };
-    let mut yhat: Vec<f64> = u.iter().map(|x| estimate.model.j0_per_pa * x).collect();
-    for t in &estimate.model.terms {
-        for (yh, x) in yhat
-            .iter_mut()
-            .zip(crate::discrete::foh_highpass(u, t.tau_s, fs))
-        {
-            *yh -= t.j_per_pa * x;
+
+    let time_domain = |n: usize| -> OrderFit {
+        let mut opts = TimeFitOptions::new(n);
+        opts.sampling = sampling;
+        let est = fit_time_domain(u, y, fs, &opts)?;
+        let scale2 = y.iter().map(|v| v * v).sum::<f64>() / len as f64;
+        let rss = est.diagnostics.cost * scale2;
+        let nf = len as f64;
+        let p = (2 * n + 1) as f64;
+        Ok((est, nf * (rss / nf).max(1e-300).ln() + p * nf.ln()))
+    };
+
+    let mut outcome = None;
+    if let Some(run) = periodic {
+        let p = run.period_samples;
+        // The first period settles the material when there are enough of them; a second pass
+        // drops more if the slowest fitted term has not decayed (5τ) before the first kept one.
+        let mut skip = usize::from(run.periods >= 3);
+        for pass in 0..2 {
+            let kept = run.periods - skip;
+            let range = run.start + skip * p..run.start + (skip + kept) * p;
+            let up = remove_linear_drift(&u[range.clone()], kept);
+            let yp = remove_linear_drift(&y[range.clone()], kept);
+            let spectra = match periodic_spectra(
+                &up,
+                &yp,
+                fs,
+                kept,
+                &LineSelection::Auto { relative: 1e-3 },
+                16,
+            ) {
+                Ok(s) => s,
+                Err(e) => {
+                    notes.push(format!(
+                        "periodic drive, but its spectrum could not be used ({e}): time-domain fit"
+                    ));
+                    break;
+                }
+            };
+            let lines = spectra.lines.len() as f64;
+            let freq = |n: usize| -> OrderFit {
+                let mut opts = FrequencyFitOptions::new(n, fs, kept);
+                opts.sampling = sampling;
+                let est = fit_spectra(&spectra, &opts)?;
+                let bic = est.diagnostics.cost + (2 * n + 1) as f64 * (2.0 * lines).ln();
+                Ok((est, bic))
+            };
+            let (candidates, chosen, err) = select(range.clone(), &freq);
+            let Some(est) = chosen else {
+                notes.push(format!(
+                    "periodic drive, but no order could be fitted in the frequency domain ({}): time-domain fit",
+                    err.map_or("no start".into(), |e| e.to_string())
+                ));
+                break;
+            };
+            let slowest = est.model.terms.first().map_or(0.0, |t| t.tau_s);
+            let settled_at = (5.0 * slowest * fs).ceil() as usize;
+            let need = settled_at.saturating_sub(run.start).div_ceil(p);
+            let f_hi = spectra.lines.iter().map(|l| l.freq_hz).fold(0.0, f64::max);
+            if pass == 0 && need > skip && run.periods >= need + 2 {
+                notes.push(format!(
+                    "the first {need} period(s) fall within 5·tau1 of contact: dropped and refitted"
+                ));
+                skip = need;
+                continue;
+            }
+            if need > skip {
+                notes.push(format!(
+                    "the first kept period starts {:.3} s after contact, less than 5·tau1 = {:.3} s: \
+                     the material may not have settled into its periodic state",
+                    (run.start + skip * p) as f64 / fs,
+                    5.0 * slowest
+                ));
+            }
+            outcome = Some((
+                FitMethod::FrequencyMl,
+                range,
+                candidates,
+                est,
+                BIC_FREQUENCY,
+                [fs / (kept * p) as f64, f_hi.min(fs / 2.0)],
+            ));
+            break;
         }
     }
-    let r: Vec<f64> = y.iter().zip(&yhat).map(|(a, b)| a - b).collect();
+    let (method, fitted, candidates, estimate, criterion, band_hz) = match outcome {
+        Some(o) => o,
+        None => {
+            let (candidates, chosen, err) = select(0..len, &time_domain);
+            let Some(est) = chosen else {
+                return Err(FitError::Estimate(err.unwrap_or(EstimateError::NoStart)));
+            };
+            (
+                FitMethod::TimeOutputError,
+                0..len,
+                candidates,
+                est,
+                BIC_TIME,
+                [fs / len as f64, fs / 10.0],
+            )
+        }
+    };
+    if candidates
+        .iter()
+        .find(|c| c.terms == estimate.model.order())
+        .is_some_and(|c| c.rejected.is_some())
+    {
+        notes.push(
+            "every order has a retardation time outside what the record resolves: the slowest \
+             term is not identified; read J(t) at the end of the window, not J0"
+                .into(),
+        );
+    }
+    let yhat = simulate_foh(&estimate.model, u, fs);
+    let r: Vec<f64> = fitted.clone().map(|i| y[i] - yhat[i]).collect();
     let rss: f64 = r.iter().map(|v| v * v).sum();
     let lag1 = r.windows(2).map(|w| w[0] * w[1]).sum::<f64>() / rss.max(1e-300);
     Ok(RecordingFit {
-        nrmse: (rss / syy).sqrt(),
+        nrmse: nrmse(&y[fitted.clone()], &yhat[fitted.clone()]),
         residual_lag1: lag1,
+        whiteness: whiteness(&r),
+        method,
+        periodic,
+        fitted,
         prepared,
         estimate,
+        yhat,
+        criterion,
         candidates,
+        band_hz,
+        notes,
     })
+}
+
+impl RecordingFit {
+    /// The estimator's own method tag.
+    pub fn estimator(&self) -> Method {
+        self.estimate.method
+    }
+
+    /// Duration of the fitted samples, s.
+    pub fn fitted_duration_s(&self) -> f64 {
+        self.fitted.len() as f64 / self.prepared.fs_hz
+    }
 }
