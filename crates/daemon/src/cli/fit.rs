@@ -14,7 +14,7 @@ use viscoprobe_core::recording::Recording;
 pub struct FitArgs {
     /// A recording (`run.csv` with `run.toml` beside it) or a JPK `.jpk-force` file.
     pub recording: PathBuf,
-    /// Prony terms: a number, or `auto` (lowest BIC of 1 to 4 terms).
+    /// Prony terms: a number, or `auto` (lowest BIC of 1 to 5 terms).
     #[arg(long, default_value = "auto")]
     pub terms: String,
     /// Tip radius for files that do not record it (JPK), nm.
@@ -89,7 +89,7 @@ pub fn run_import(args: ImportArgs) -> anyhow::Result<()> {
 
 pub fn run_fit(args: FitArgs) -> anyhow::Result<()> {
     let terms = match args.terms.as_str() {
-        "auto" => Terms::Auto { max: 4 },
+        "auto" => Terms::Auto { max: 5 },
         n => Terms::Fixed(
             n.parse::<usize>()
                 .ok()
@@ -113,13 +113,16 @@ pub fn run_fit(args: FitArgs) -> anyhow::Result<()> {
         .cloned()
         .zip(est.ci95.iter().map(|c| json!(c)))
         .collect();
+    // The band the record resolves (see `RecordingFit::band_hz`), 21 log-spaced points.
+    let [f_lo, f_hi] = fit.band_hz;
     let freqs: Vec<f64> = (0..=20)
-        .map(|i| 10f64.powf(-1.0 + 4.0 * i as f64 / 20.0))
+        .map(|i| f_lo * (f_hi / f_lo).powf(i as f64 / 20.0))
         .collect();
+    let fs = rec.sample_rate_hz;
     let w = |f: f64| 2.0 * std::f64::consts::PI * f;
     let out = json!({
         "file": args.recording.display().to_string(),
-        "method": "time_domain_output_error",
+        "method": fit.method.name(),
         "prony": {
             "j0_per_pa": v[0],
             "terms": (0..n).map(|i| json!({"j_per_pa": v[1 + i], "tau_s": v[1 + n + i]})).collect::<Vec<_>>(),
@@ -132,16 +135,29 @@ pub fn run_fit(args: FitArgs) -> anyhow::Result<()> {
             "storage_pa": freqs.iter().map(|&f| est.model.storage_modulus(w(f))).collect::<Vec<_>>(),
             "loss_pa": freqs.iter().map(|&f| est.model.loss_modulus(w(f))).collect::<Vec<_>>(),
             "tan_delta": freqs.iter().map(|&f| est.model.loss_tangent(w(f))).collect::<Vec<_>>(),
+            "band_hz": fit.band_hz,
+            "compliance_at_window_end_per_pa": est.model.creep_compliance(fit.fitted_duration_s()),
         },
         "fit": {
             "nrmse": fit.nrmse,
             "residual_lag1_correlation": fit.residual_lag1,
-            "samples": fit.prepared.u.len(),
-            "contact_time_s": fit.prepared.contact_index as f64 / rec.sample_rate_hz,
-            "window_s": [fit.prepared.contact_index as f64 / rec.sample_rate_hz, fit.prepared.end_index as f64 / rec.sample_rate_hz],
+            "whiteness": {
+                "ljung_box_q": fit.whiteness.ljung_box_q,
+                "lags": fit.whiteness.autocorrelation.len(),
+                "critical_95": fit.whiteness.critical_95,
+                "white": fit.whiteness.white,
+                "autocorrelation": fit.whiteness.autocorrelation,
+            },
+            "samples": fit.fitted.len(),
+            "contact_time_s": rec.time_s[fit.prepared.contact_index],
+            "window_s": [rec.time_s[fit.prepared.contact_index], rec.time_s[fit.prepared.end_index - 1] + 1.0 / fs],
+            "fitted_s": [fit.prepared.time_s[fit.fitted.start], fit.prepared.time_s[fit.fitted.end - 1] + 1.0 / fs],
+            "periodic": fit.periodic.map(|p| json!({"period_s": p.period_samples as f64 / fs, "periods": p.periods})),
             "indentation_from": fit.prepared.indentation_source,
-            "order_selection": fit.candidates.iter().map(|c| json!({"terms": c.terms, "bic": c.bic, "nrmse": c.nrmse})).collect::<Vec<_>>(),
+            "criterion": fit.criterion,
+            "order_selection": fit.candidates.iter().map(|c| json!({"terms": c.terms, "bic": if c.bic.is_finite() { json!(c.bic) } else { Value::Null }, "nrmse": if c.nrmse.is_finite() { json!(c.nrmse) } else { Value::Null }, "rejected": c.rejected})).collect::<Vec<_>>(),
         },
+        "notes": fit.notes,
         "warnings": est.diagnostics.warnings,
     });
     if args.json {
@@ -154,22 +170,36 @@ pub fn run_fit(args: FitArgs) -> anyhow::Result<()> {
         rec.sample_rate_hz
     );
     println!(
-        "contact at t = {:.4} s; fitted window {:.4}–{:.4} s ({} samples); indentation from {}",
-        fit.prepared.contact_index as f64 / rec.sample_rate_hz,
-        fit.prepared.contact_index as f64 / rec.sample_rate_hz,
-        fit.prepared.end_index as f64 / rec.sample_rate_hz,
-        fit.prepared.u.len(),
+        "contact at t = {:.4} s; in-contact window {:.4}–{:.4} s; indentation from {}",
+        rec.time_s[fit.prepared.contact_index],
+        rec.time_s[fit.prepared.contact_index],
+        rec.time_s[fit.prepared.end_index - 1] + 1.0 / fs,
         fit.prepared.indentation_source
     );
-    if fit.candidates.len() > 1 {
-        println!("order selection (BIC, lower is better):");
-        for c in &fit.candidates {
-            let mark = if c.terms == n { "  ← chosen" } else { "" };
-            println!(
-                "  {} term(s): BIC {:.1}, NRMSE {:.4}{mark}",
-                c.terms, c.bic, c.nrmse
-            );
-        }
+    match (fit.method, fit.periodic) {
+        (viscoprobe_core::analysis::FitMethod::FrequencyMl, Some(p)) => println!(
+            "method: frequency-domain ML — the drive is periodic ({} whole periods of {:.4} s); fitted {} samples",
+            p.periods,
+            p.period_samples as f64 / fs,
+            fit.fitted.len()
+        ),
+        _ => println!(
+            "method: time-domain output error — the drive is not periodic; fitted {} samples",
+            fit.fitted.len()
+        ),
+    }
+    println!("order selection: {} (lower is better)", fit.criterion);
+    for c in &fit.candidates {
+        let mark = if c.terms == n { "  ← chosen" } else { "" };
+        let why = c
+            .rejected
+            .as_deref()
+            .map(|r| format!(" — {r}"))
+            .unwrap_or_default();
+        println!(
+            "  {} term(s): BIC {:.1}, NRMSE {:.4}{why}{mark}",
+            c.terms, c.bic, c.nrmse
+        );
     }
     println!("Prony creep compliance ({} terms), 95 % intervals:", n);
     for (i, name) in names.iter().enumerate() {
@@ -191,10 +221,24 @@ pub fn run_fit(args: FitArgs) -> anyhow::Result<()> {
         est.model.relaxed_modulus() / 1e3
     );
     println!(
-        "fit: NRMSE {:.4}, residual lag-1 correlation {:.3}",
-        fit.nrmse, fit.residual_lag1
+        "fit: NRMSE {:.4}; residuals: lag-1 correlation {:.3}, Ljung–Box Q({}) = {:.1} ({} at 5 %, critical {:.1})",
+        fit.nrmse,
+        fit.residual_lag1,
+        fit.whiteness.autocorrelation.len(),
+        fit.whiteness.ljung_box_q,
+        if fit.whiteness.white { "white" } else { "not white" },
+        fit.whiteness.critical_95
     );
-    for w in &est.diagnostics.warnings {
+    println!(
+        "moduli over the resolved band {:.3}–{:.1} Hz: E′ {:.4}–{:.4} kPa, tan δ {:.3}–{:.3}",
+        f_lo,
+        f_hi,
+        est.model.storage_modulus(w(f_lo)) / 1e3,
+        est.model.storage_modulus(w(f_hi)) / 1e3,
+        est.model.loss_tangent(w(f_lo)),
+        est.model.loss_tangent(w(f_hi))
+    );
+    for w in fit.notes.iter().chain(&est.diagnostics.warnings) {
         println!("note: {w}");
     }
     let _ = PronySeries::param_names(n);
