@@ -1,0 +1,97 @@
+//! Scoring the diagnosis on a labelled corpus: top-1 accuracy, false positives on null cases,
+//! held-out NRMSE improvement, and the confusion matrix (`viscoprobe diagnose-bench`).
+
+use super::{Diagnosis, Verdict};
+
+/// The outcome of one labelled case.
+#[derive(Debug, Clone)]
+pub struct CaseOutcome {
+    pub name: String,
+    /// True effects (empty: a null case).
+    pub truth: Vec<String>,
+    /// The top-ranked significant effect, if any.
+    pub top: Option<String>,
+    /// Every significant effect.
+    pub significant: Vec<String>,
+    pub verdict: Verdict,
+    pub before_nrmse: f64,
+    pub after_nrmse: f64,
+    pub seconds: f64,
+}
+
+impl CaseOutcome {
+    pub fn new(name: &str, truth: &[&str], d: &Diagnosis, seconds: f64) -> Self {
+        let significant: Vec<String> = d
+            .effects
+            .iter()
+            .filter(|e| e.significant)
+            .map(|e| e.id.to_string())
+            .collect();
+        Self {
+            name: name.into(),
+            truth: truth.iter().map(|s| s.to_string()).collect(),
+            top: significant.first().cloned(),
+            significant,
+            verdict: d.verdict,
+            before_nrmse: d.before.held_out_nrmse,
+            after_nrmse: d.after.held_out_nrmse,
+            seconds,
+        }
+    }
+
+    pub fn is_null(&self) -> bool {
+        self.truth.is_empty()
+    }
+
+    /// Effect case: the top-ranked significant effect is one of the true ones.
+    pub fn top_correct(&self) -> bool {
+        self.top.as_ref().is_some_and(|t| self.truth.contains(t))
+    }
+
+    /// Relative improvement of the held-out NRMSE, `1 − after/before`.
+    pub fn improvement(&self) -> f64 {
+        1.0 - self.after_nrmse / self.before_nrmse
+    }
+}
+
+/// Scores over a corpus.
+#[derive(Debug, Clone)]
+pub struct Score {
+    pub effect_cases: usize,
+    pub top_correct: usize,
+    pub null_cases: usize,
+    pub null_false_positives: usize,
+    /// Effect cases whose held-out NRMSE improved by at least 30 %.
+    pub improved_30: usize,
+    /// Rows: truth (first true effect, or `null`); columns: top-ranked (or `none`).
+    pub confusion: Vec<(String, String, usize)>,
+}
+
+pub fn score(outcomes: &[CaseOutcome]) -> Score {
+    let effects: Vec<&CaseOutcome> = outcomes.iter().filter(|o| !o.is_null()).collect();
+    let nulls: Vec<&CaseOutcome> = outcomes.iter().filter(|o| o.is_null()).collect();
+    let mut confusion: Vec<(String, String, usize)> = vec![];
+    for o in outcomes {
+        let row = if o.is_null() {
+            "null".to_string()
+        } else if o.top_correct() {
+            o.top.clone().unwrap_or_default()
+        } else {
+            o.truth[0].clone()
+        };
+        let col = o.top.clone().unwrap_or_else(|| "none".into());
+        match confusion.iter_mut().find(|c| c.0 == row && c.1 == col) {
+            Some(c) => c.2 += 1,
+            None => confusion.push((row, col, 1)),
+        }
+    }
+    confusion.sort();
+    Score {
+        effect_cases: effects.len(),
+        top_correct: effects.iter().filter(|o| o.top_correct()).count(),
+        null_cases: nulls.len(),
+        null_false_positives: nulls.iter().filter(|o| !o.significant.is_empty()).count(),
+        improved_30: effects.iter().filter(|o| o.improvement() >= 0.3).count(),
+        confusion,
+    }
+}

@@ -1,0 +1,315 @@
+//! Where a mismatch lives: the record's phases in time, bands and lines in frequency, and the
+//! residual's whiteness and correlation with the input — each with a significance against
+//! the measured noise floor.
+//!
+//! Phases are found from the signals, never from the sidecar's notes (third-party files do not
+//! have them): the approach runs to the contact point; the retract is the final run of
+//! non-increasing drive; a hold is the longest run of constant drive; the excitation lies
+//! between contact and hold (or retract); the pull-off is the jump back to the free baseline
+//! after the deepest adhesive dip on retract.
+
+use serde::Serialize;
+
+/// A phase of the record, `[start, end)` in samples.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct Phase {
+    pub name: &'static str,
+    pub start: usize,
+    pub end: usize,
+}
+
+/// The phases of a record. `hints` are `(kind, start, end)` segments a file may declare (a
+/// JPK file's segment table, a sidecar's `[[notes.segments]]`): a declared `hold` or
+/// `retract` is used as declared, everything else is found from the signals.
+pub fn phases(
+    drive: &[f64],
+    deflection_v: &[f64],
+    contact: usize,
+    baseline_v: f64,
+    sigma_v: f64,
+    hints: &[(String, usize, usize)],
+) -> Vec<Phase> {
+    let n = drive.len();
+    let hint = |kind: &str| {
+        hints
+            .iter()
+            .find(|h| h.0.eq_ignore_ascii_case(kind) && h.1 < h.2 && h.2 <= n)
+            .map(|h| (h.1, h.2))
+    };
+    let lo = drive.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = drive.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    let tol = 1e-6 * (hi - lo).max(1e-300);
+    let w = (n / 100).max(10);
+    let mut out = vec![];
+    if contact > 0 {
+        out.push(Phase {
+            name: "approach",
+            start: 0,
+            end: contact,
+        });
+    }
+    out.push(Phase {
+        name: "contact_onset",
+        start: contact.saturating_sub(w),
+        end: (contact + w).min(n),
+    });
+    // Retract: the final run of non-increasing drive (at least 2 % of the record).
+    let mut r = n - 1;
+    while r > contact && drive[r - 1] >= drive[r] - tol {
+        r -= 1;
+    }
+    // A hold before the retract is not part of it.
+    while r + 1 < n && (drive[r] - drive[r + 1]).abs() <= tol {
+        r += 1;
+    }
+    let retract = hint("retract")
+        .map(|h| h.0)
+        .or_else(|| (n - r >= n / 50 && drive[r] - drive[n - 1] > tol).then_some(r));
+    let end_contact = retract.unwrap_or(n);
+    // Hold: the longest run of constant drive in contact, at least 5 % of the record.
+    let (mut best, mut run_start) = ((0usize, 0usize), contact);
+    for k in contact + 1..=end_contact {
+        let flat = k < end_contact && (drive[k] - drive[k - 1]).abs() <= tol;
+        if !flat {
+            if k - run_start > best.1 - best.0 {
+                best = (run_start, k);
+            }
+            run_start = k;
+        }
+    }
+    let hold = hint("hold").or_else(|| (best.1 - best.0 >= n / 20).then_some(best));
+    let exc_end = hold.map_or(end_contact, |h| h.0);
+    if exc_end > contact + w {
+        out.push(Phase {
+            name: "excitation",
+            start: contact,
+            end: exc_end,
+        });
+    }
+    if let Some((a, b)) = hold {
+        out.push(Phase {
+            name: "hold",
+            start: a,
+            end: b,
+        });
+    }
+    if let Some(r) = retract {
+        out.push(Phase {
+            name: "retract",
+            start: r,
+            end: n,
+        });
+        // Pull-off: the deepest dip below the free baseline on retract, if it is significant.
+        let (kmin, vmin) = (r..n)
+            .map(|k| (k, deflection_v[k]))
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .unwrap_or((r, baseline_v));
+        if vmin < baseline_v - 6.0 * sigma_v {
+            out.push(Phase {
+                name: "pull_off",
+                start: kmin.saturating_sub(w),
+                end: (kmin + w).min(n),
+            });
+        }
+    }
+    out
+}
+
+/// One located mismatch.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Location {
+    /// `time`, `frequency`, `whiteness` or `input_correlation`.
+    pub domain: &'static str,
+    /// Phase name, band name (`excited_lines`, `mains_lines`, `band`), or statistic.
+    pub name: String,
+    /// Time window, s (time domain), or frequency band, Hz (frequency domain).
+    pub from: f64,
+    pub to: f64,
+    /// Residual power relative to the noise floor (1 = at the floor).
+    pub power_ratio: f64,
+    /// Significance in standard deviations of the floor's own scatter.
+    pub z: f64,
+    pub significant: bool,
+}
+
+/// Threshold of significance, in standard deviations.
+pub const Z_SIGNIFICANT: f64 = 5.0;
+
+/// Time-domain excess of a whitened, σ-normalised residual `e` in each phase.
+pub fn in_time(e: &[f64], phases: &[Phase], fs_hz: f64) -> Vec<Location> {
+    phases
+        .iter()
+        .filter(|p| p.end > p.start + 1)
+        .map(|p| {
+            let n = (p.end - p.start) as f64;
+            let chi2: f64 = e[p.start..p.end].iter().map(|v| v * v).sum();
+            let z = (chi2 - n) / (2.0 * n).sqrt();
+            Location {
+                domain: "time",
+                name: p.name.into(),
+                from: p.start as f64 / fs_hz,
+                to: p.end as f64 / fs_hz,
+                power_ratio: chi2 / n,
+                z,
+                significant: z > Z_SIGNIFICANT,
+            }
+        })
+        .collect()
+}
+
+/// Frequency-domain excess over `window`: the excited lines (where the drive has power),
+/// the mains lines (50/60 Hz and two harmonics), and octave bands of everything else; only
+/// above `f_min_hz`, the lowest frequency at which the floor was measured (a free segment of
+/// T seconds says nothing about noise slower than a few 1/T).
+pub fn in_frequency(
+    e: &[f64],
+    drive: &[f64],
+    window: (usize, usize),
+    fs_hz: f64,
+    f_min_hz: f64,
+) -> Vec<Location> {
+    use rustfft::{num_complex::Complex64, FftPlanner};
+    let (a, b) = window;
+    let n = b - a;
+    if n < 64 {
+        return vec![];
+    }
+    let mut planner = FftPlanner::new();
+    let fft = planner.plan_fft_forward(n);
+    let spec = |x: &[f64]| -> Vec<f64> {
+        let m = x.iter().sum::<f64>() / n as f64;
+        let mut buf: Vec<Complex64> = x.iter().map(|v| Complex64::new(v - m, 0.0)).collect();
+        fft.process(&mut buf);
+        buf[..n / 2]
+            .iter()
+            .map(|c| c.norm_sqr() / n as f64)
+            .collect()
+    };
+    let pe = spec(&e[a..b]);
+    let pd = spec(&drive[a..b]);
+    let df = fs_hz / n as f64;
+    let dmax = pd.iter().skip(1).copied().fold(0.0, f64::max);
+    let mut group = vec![2u8; n / 2]; // 0 excited, 1 mains, 2 other, 3 below the floor
+    for k in 1..n / 2 {
+        if (k as f64) * df < f_min_hz {
+            group[k] = 3;
+            continue;
+        }
+        if pd[k] > 1e-3 * dmax {
+            group[k] = 0;
+        }
+    }
+    for f0 in [50.0, 60.0] {
+        for h in 1..=3 {
+            let k = (f0 * h as f64 / df).round() as usize;
+            let (k0, k1) = (k.saturating_sub(1).max(1), (k + 2).min(n / 2));
+            for g in group.iter_mut().take(k1).skip(k0) {
+                if *g == 2 {
+                    *g = 1;
+                }
+            }
+        }
+    }
+    let mut out = vec![];
+    let mut add = |name: String, bins: Vec<usize>| {
+        if bins.is_empty() {
+            return;
+        }
+        let m = bins.len() as f64;
+        let s: f64 = bins.iter().map(|&k| pe[k]).sum();
+        let z = (s - m) / m.sqrt();
+        let f_lo = *bins.first().unwrap_or(&0) as f64 * df;
+        let f_hi = *bins.last().unwrap_or(&0) as f64 * df;
+        out.push(Location {
+            domain: "frequency",
+            name,
+            from: f_lo,
+            to: f_hi,
+            power_ratio: s / m,
+            z,
+            significant: z > Z_SIGNIFICANT,
+        });
+    };
+    add(
+        "excited_lines".into(),
+        (1..n / 2).filter(|&k| group[k] == 0).collect(),
+    );
+    add(
+        "mains_lines".into(),
+        (1..n / 2).filter(|&k| group[k] == 1).collect(),
+    );
+    let mut f = df.max(f_min_hz);
+    while f < fs_hz / 2.0 {
+        let (k0, k1) = ((f / df) as usize, ((2.0 * f / df) as usize).min(n / 2));
+        add(
+            format!("band {:.0}–{:.0} Hz", f, 2.0 * f),
+            (k0.max(1)..k1).filter(|&k| group[k] == 2).collect(),
+        );
+        f *= 2.0;
+    }
+    out
+}
+
+/// Ljung–Box whiteness of `e` over lags 1..=20 and the largest input–residual
+/// cross-correlation over lags −20..=20 (input: the drive's increments).
+pub fn whiteness(e: &[f64], drive: &[f64], fs_hz: f64) -> Vec<Location> {
+    let n = e.len();
+    if n < 100 {
+        return vec![];
+    }
+    let m = e.iter().sum::<f64>() / n as f64;
+    let x: Vec<f64> = e.iter().map(|v| v - m).collect();
+    let c0: f64 = x.iter().map(|v| v * v).sum();
+    let lags = 20;
+    let q: f64 = (1..=lags)
+        .map(|k| {
+            let rk = (k..n).map(|i| x[i] * x[i - k]).sum::<f64>() / c0;
+            rk * rk / (n - k) as f64
+        })
+        .sum::<f64>()
+        * n as f64
+        * (n as f64 + 2.0);
+    // χ²₂₀ has mean 20 and σ √40.
+    let zq = (q - lags as f64) / (2.0 * lags as f64).sqrt();
+    let du: Vec<f64> = std::iter::once(0.0)
+        .chain(drive.windows(2).map(|w| w[1] - w[0]))
+        .collect();
+    let mu = du.iter().sum::<f64>() / n as f64;
+    let du: Vec<f64> = du.iter().map(|v| v - mu).collect();
+    let cu: f64 = du.iter().map(|v| v * v).sum::<f64>().max(1e-300);
+    let (mut best, mut best_lag) = (0.0f64, 0i64);
+    for lag in -20i64..=20 {
+        let s: f64 = (0..n)
+            .filter_map(|i| {
+                let j = i as i64 - lag;
+                (j >= 0 && (j as usize) < n).then(|| x[i] * du[j as usize])
+            })
+            .sum();
+        let r = s / (c0 * cu).sqrt();
+        if r.abs() > best.abs() {
+            best = r;
+            best_lag = lag;
+        }
+    }
+    let zc = best.abs() * (n as f64).sqrt();
+    vec![
+        Location {
+            domain: "whiteness",
+            name: "ljung_box_20_lags".into(),
+            from: 1.0 / fs_hz,
+            to: lags as f64 / fs_hz,
+            power_ratio: q / lags as f64,
+            z: zq,
+            significant: zq > Z_SIGNIFICANT,
+        },
+        Location {
+            domain: "input_correlation",
+            name: format!("drive increments, lag {best_lag} samples"),
+            from: best_lag as f64 / fs_hz,
+            to: best_lag as f64 / fs_hz,
+            power_ratio: best,
+            z: zc,
+            significant: zc > Z_SIGNIFICANT,
+        },
+    ]
+}

@@ -1,0 +1,635 @@
+//! The models a diagnosis fits: the nominal twin, and the twin with catalog modules on.
+//!
+//! A model is a [`ModelSpec`] (how many Prony terms, which [`Effect`]s) and a parameter vector
+//! in fitting coordinates (logarithms of positive quantities). [`Problem::evaluate`] builds the
+//! matching [`TwinConfig`] — the very modules the simulator runs — plays the recorded drive
+//! through it without noise, and compares the deflection with the recording.
+//!
+//! Effects that enter the deflection *linearly* (baseline offset, thermal drift, mains
+//! pick-up, hydrodynamic drag, detector nonlinearity) are the twin's detector/drag terms too,
+//! but their coefficients are solved in closed form at every evaluation (variable projection)
+//! instead of by the nonlinear solver: exact, and an order of magnitude cheaper.
+//!
+//! Residuals are whitened with the noise model of the record (an AR filter fitted where the
+//! lever was free) and divided by the whitened noise σ, so a sum of squares is a χ² — the
+//! common currency of every decision the diagnosis makes.
+
+use crate::prony::{PronySeries, PronyTerm};
+use crate::twin::actuator::{ActuatorConfig, BoucWen, Creep, ResonantMode};
+use crate::twin::detector::DetectorConfig;
+use crate::twin::{CantileverConfig, ReferenceConfig, SampleConfig, TipConfig, Twin, TwinConfig};
+use nalgebra::{DMatrix, DVector};
+
+/// One catalog effect, as a module of the twin.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Effect {
+    PiezoHysteresis,
+    PiezoCreep,
+    ThermalDrift,
+    MissingRelaxation,
+    InstrumentResonance,
+    Adhesion,
+    TipGeometry,
+    HydrodynamicDrag,
+    ChannelDelay,
+    MainsInterference,
+    DetectorNonlinearity,
+    SubstrateEffect,
+}
+
+impl Effect {
+    pub const ALL: [Effect; 12] = [
+        Effect::PiezoHysteresis,
+        Effect::PiezoCreep,
+        Effect::ThermalDrift,
+        Effect::MissingRelaxation,
+        Effect::InstrumentResonance,
+        Effect::Adhesion,
+        Effect::TipGeometry,
+        Effect::HydrodynamicDrag,
+        Effect::ChannelDelay,
+        Effect::MainsInterference,
+        Effect::DetectorNonlinearity,
+        Effect::SubstrateEffect,
+    ];
+
+    /// The catalog id, exactly as reported.
+    pub fn id(self) -> &'static str {
+        super::CATALOG[self as usize]
+    }
+
+    pub fn from_id(id: &str) -> Option<Effect> {
+        Effect::ALL.iter().copied().find(|e| e.id() == id)
+    }
+
+    /// What the effect is, in plain words, for the report.
+    pub fn describe(self) -> &'static str {
+        match self {
+            Effect::PiezoHysteresis => {
+                "rate-independent hysteresis of the piezo actuator (Bouc–Wen)"
+            }
+            Effect::PiezoCreep => "creep of the piezo actuator after a voltage change",
+            Effect::ThermalDrift => "thermal drift of the deflection signal",
+            Effect::MissingRelaxation => "a retardation time the nominal Prony series lacks",
+            Effect::InstrumentResonance => "a resonance of the scanner within the band",
+            Effect::Adhesion => "tip–sample adhesion (DMT): snap-in and a pull-off on retract",
+            Effect::TipGeometry => "a tip shape other than the one declared",
+            Effect::HydrodynamicDrag => "viscous drag on the lever, proportional to its velocity",
+            Effect::ChannelDelay => "a delay of the deflection channel behind the drive",
+            Effect::MainsInterference => "mains pick-up on the deflection signal",
+            Effect::DetectorNonlinearity => "a nonlinear deflection detector",
+            Effect::SubstrateEffect => "a thin film on a stiff substrate (stiffening with depth)",
+        }
+    }
+
+    /// Names and units of the nonlinear parameters, in θ order (values reported in these units).
+    fn nonlinear_names(self, declared: &TipConfig) -> Vec<(&'static str, &'static str)> {
+        match self {
+            Effect::PiezoHysteresis => vec![
+                ("alpha", "1"),
+                ("beta_per_v", "1/V"),
+                ("gamma_per_v", "1/V"),
+            ],
+            Effect::PiezoCreep => vec![("fraction", "1"), ("tau_s", "s")],
+            Effect::MissingRelaxation => vec![("j_per_pa", "1/Pa"), ("tau_s", "s")],
+            Effect::InstrumentResonance => vec![("freq_hz", "Hz"), ("q", "1")],
+            Effect::Adhesion => vec![("pull_off_force_nn", "nN")],
+            Effect::ChannelDelay => vec![("delay_s", "s")],
+            Effect::SubstrateEffect => vec![("film_thickness_nm", "nm")],
+            Effect::TipGeometry => {
+                let _ = declared;
+                vec![]
+            }
+            _ => vec![],
+        }
+    }
+
+    /// Names and units of the linear (closed-form) coefficients.
+    fn linear_names(self, mains_hz: f64) -> Vec<(String, &'static str)> {
+        match self {
+            Effect::ThermalDrift => vec![("drift_v_per_s".into(), "V/s")],
+            Effect::MainsInterference => vec![
+                (format!("cos_{mains_hz:.0}hz_v"), "V"),
+                (format!("sin_{mains_hz:.0}hz_v"), "V"),
+            ],
+            Effect::HydrodynamicDrag => vec![("drag_nn_s_per_nm".into(), "nN·s/nm")],
+            Effect::DetectorNonlinearity => {
+                vec![
+                    ("quadratic_per_v".into(), "1/V"),
+                    ("cubic_per_v2".into(), "1/V²"),
+                ]
+            }
+            _ => vec![],
+        }
+    }
+
+    pub fn n_nonlinear(self) -> usize {
+        self.nonlinear_names(&TipConfig::Sphere { radius_nm: 1.0 })
+            .len()
+    }
+}
+
+/// Which model: Prony order of the material and the effects switched on.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ModelSpec {
+    pub effects: Vec<Effect>,
+}
+
+/// Prony terms of the nominal material. The nominal twin is the simplest model that describes
+/// a viscoelastic indentation across a broadband record; a third time constant is a catalog
+/// effect of its own (`missing_relaxation`), not something the nominal fit may add silently.
+pub const NOMINAL_TERMS: usize = 2;
+
+impl ModelSpec {
+    pub fn nominal() -> Self {
+        Self { effects: vec![] }
+    }
+
+    pub fn with(effects: &[Effect]) -> Self {
+        let mut e = effects.to_vec();
+        e.sort();
+        e.dedup();
+        Self { effects: e }
+    }
+
+    pub fn has(&self, e: Effect) -> bool {
+        self.effects.contains(&e)
+    }
+
+    /// Number of nominal nonlinear parameters: ln g, contact point, ln J_inst, (ln Ji, ln τi)×n.
+    pub fn n_nominal(&self) -> usize {
+        3 + 2 * NOMINAL_TERMS
+    }
+
+    pub fn n_nonlinear(&self) -> usize {
+        self.n_nominal() + self.effects.iter().map(|e| e.n_nonlinear()).sum::<usize>()
+    }
+
+    /// Offset of effect `e`'s nonlinear parameters in θ.
+    pub fn offset_of(&self, e: Effect) -> Option<usize> {
+        let mut off = self.n_nominal();
+        for &x in &self.effects {
+            if x == e {
+                return Some(off);
+            }
+            off += x.n_nonlinear();
+        }
+        None
+    }
+
+    pub fn label(&self) -> String {
+        if self.effects.is_empty() {
+            "nominal".into()
+        } else {
+            self.effects
+                .iter()
+                .map(|e| e.id())
+                .collect::<Vec<_>>()
+                .join("+")
+        }
+    }
+}
+
+/// Everything about the recording that a model evaluation needs, fixed for a diagnosis.
+#[derive(Debug, Clone)]
+pub struct Problem {
+    pub fs_hz: f64,
+    /// Drive, in the recording's unit (V, or nm with a gain of 1 nm/nm).
+    pub drive: Vec<f64>,
+    pub drive_is_volts: bool,
+    /// Recorded deflection, V.
+    pub deflection_v: Vec<f64>,
+    /// Time from the first sample, s.
+    pub t_s: Vec<f64>,
+    pub spring_constant_n_per_m: f64,
+    pub sensitivity_nm_per_v: f64,
+    pub declared_tip: TipConfig,
+    pub poisson_ratio: f64,
+    /// Declared actuator gain, nm per drive unit.
+    pub gain0: f64,
+    /// AR whitening filter `[1, a1, …, ap]` and the whitened noise σ, V.
+    pub whitening: Vec<f64>,
+    pub sigma_w_v: f64,
+    /// Fitting (train) and held-out sample indices.
+    pub train: Vec<usize>,
+    pub held: Vec<usize>,
+    /// Mains frequency the `mains_interference` module uses, Hz (50 or 60).
+    pub mains_hz: f64,
+    /// Lowest frequency at which the noise floor was measured, Hz.
+    pub floor_from_hz: f64,
+    /// Twin simulations run so far (the cost of a diagnosis).
+    pub simulations: std::cell::Cell<usize>,
+}
+
+/// A model's simulated, noise-free deflection and the twin's truth along it.
+#[derive(Debug, Clone)]
+pub struct Simulation {
+    /// Deflection the twin's detector reads (no noise, no offset), V.
+    pub clean_v: Vec<f64>,
+    /// Base (actuator) position, nm.
+    pub base_nm: Vec<f64>,
+    pub in_contact: Vec<bool>,
+    /// Indentation, m.
+    pub indentation_m: Vec<f64>,
+}
+
+/// One evaluated model.
+#[derive(Debug, Clone)]
+pub struct Evaluation {
+    /// Whitened, σ-normalised residuals on the train samples (their squares sum to χ²).
+    pub train_residuals: Vec<f64>,
+    pub chi2_train: f64,
+    pub chi2_held: f64,
+    /// Raw residual `recorded − model`, V, every sample.
+    pub residual_v: Vec<f64>,
+    /// Closed-form coefficients: offset first, then the linear effect terms.
+    pub linear: Vec<f64>,
+    /// Their standard errors (white-noise, least-squares), same order.
+    pub linear_sd: Vec<f64>,
+    pub sim: Simulation,
+}
+
+const ZC_SCALE_NM: f64 = 10.0;
+const CONE_HALF_ANGLE_DEG: f64 = 20.0;
+const SWAP_SPHERE_RADIUS_NM: f64 = 1000.0;
+
+impl Problem {
+    /// The nominal start of θ from a first estimate of gain, contact point and material.
+    pub fn nominal_theta(&self, gain: f64, contact_nm: f64, material: &PronySeries) -> Vec<f64> {
+        let mut th = vec![
+            gain.ln(),
+            contact_nm / ZC_SCALE_NM,
+            material.instantaneous_compliance().max(1e-12).ln(),
+        ];
+        let mut terms = material.terms.clone();
+        terms.sort_by(|a, b| a.tau_s.total_cmp(&b.tau_s));
+        for i in 0..NOMINAL_TERMS {
+            th.push(
+                terms
+                    .get(i)
+                    .map_or(0.3 * material.j0_per_pa, |t| t.j_per_pa)
+                    .max(1e-14)
+                    .ln(),
+            );
+        }
+        for i in 0..NOMINAL_TERMS {
+            let default = 0.01 * 10f64.powi(i as i32);
+            th.push(terms.get(i).map_or(default, |t| t.tau_s).ln());
+        }
+        th
+    }
+
+    /// The material of θ (nominal terms plus `missing_relaxation`'s when on).
+    pub fn material(&self, spec: &ModelSpec, th: &[f64]) -> PronySeries {
+        let j_inst = th[2].exp();
+        let mut terms: Vec<PronyTerm> = (0..NOMINAL_TERMS)
+            .map(|i| PronyTerm {
+                j_per_pa: th[3 + i].exp(),
+                tau_s: th[3 + NOMINAL_TERMS + i].exp(),
+            })
+            .collect();
+        if let Some(o) = spec.offset_of(Effect::MissingRelaxation) {
+            terms.push(PronyTerm {
+                j_per_pa: th[o].exp(),
+                tau_s: th[o + 1].exp(),
+            });
+        }
+        let sum: f64 = terms.iter().map(|t| t.j_per_pa).sum();
+        PronySeries::new(j_inst + sum, terms)
+    }
+
+    pub fn gain(&self, th: &[f64]) -> f64 {
+        th[0].exp()
+    }
+
+    pub fn contact_point_nm(&self, th: &[f64]) -> f64 {
+        th[1] * ZC_SCALE_NM
+    }
+
+    /// The twin of θ, noise-free.
+    pub fn twin_config(&self, spec: &ModelSpec, th: &[f64]) -> TwinConfig {
+        let p = |e: Effect, i: usize| spec.offset_of(e).map(|o| th[o + i]);
+        let mut actuator = ActuatorConfig {
+            gain_nm_per_v: self.gain(th),
+            modes: vec![],
+            hysteresis: None,
+            creep: None,
+        };
+        if let (Some(a), Some(b), Some(g)) = (
+            p(Effect::PiezoHysteresis, 0),
+            p(Effect::PiezoHysteresis, 1),
+            p(Effect::PiezoHysteresis, 2),
+        ) {
+            let beta = b.exp();
+            actuator.hysteresis = Some(BoucWen {
+                alpha: a.exp(),
+                beta,
+                gamma: beta * g.tanh(),
+            });
+        }
+        if let (Some(f), Some(t)) = (p(Effect::PiezoCreep, 0), p(Effect::PiezoCreep, 1)) {
+            actuator.creep = Some(Creep {
+                fraction: f.exp(),
+                tau_s: t.exp(),
+            });
+        }
+        if let (Some(f), Some(q)) = (
+            p(Effect::InstrumentResonance, 0),
+            p(Effect::InstrumentResonance, 1),
+        ) {
+            actuator.modes.push(ResonantMode {
+                freq_hz: f.exp(),
+                q: q.exp(),
+            });
+        }
+        let tip = if spec.has(Effect::TipGeometry) {
+            match self.declared_tip {
+                TipConfig::Sphere { .. } => TipConfig::Cone {
+                    half_angle_deg: CONE_HALF_ANGLE_DEG,
+                },
+                TipConfig::Cone { .. } => TipConfig::Sphere {
+                    radius_nm: SWAP_SPHERE_RADIUS_NM,
+                },
+            }
+        } else {
+            self.declared_tip
+        };
+        let detector = DetectorConfig {
+            delay_s: p(Effect::ChannelDelay, 0).map_or(0.0, |d| d.exp()),
+            ..DetectorConfig::default()
+        };
+        TwinConfig {
+            seed: 0,
+            actuator,
+            cantilever: CantileverConfig {
+                spring_constant_n_per_m: self.spring_constant_n_per_m,
+                deflection_sensitivity_nm_per_v: self.sensitivity_nm_per_v,
+                first_mode: None,
+            },
+            tip,
+            sample: SampleConfig {
+                name: None,
+                material: self.material(spec, th),
+                poisson_ratio: self.poisson_ratio,
+                contact_point_nm: self.contact_point_nm(th),
+                adhesion_nn: p(Effect::Adhesion, 0).map(f64::exp),
+                thickness_nm: p(Effect::SubstrateEffect, 0).map(f64::exp),
+            },
+            reference: ReferenceConfig::default(),
+            detector,
+            drag: None,
+            height_sensor: None,
+        }
+    }
+
+    /// Plays the recorded drive through the twin of θ. `None` when the parameters are not
+    /// physical (the twin would give nonsense) or the simulation is not finite.
+    pub fn simulate(&self, spec: &ModelSpec, th: &[f64]) -> Option<Simulation> {
+        if th.iter().any(|v| !v.is_finite()) {
+            return None;
+        }
+        let cfg = self.twin_config(spec, th);
+        if !cfg.validate("").is_empty() {
+            return None;
+        }
+        self.simulations.set(self.simulations.get() + 1);
+        let mut twin = Twin::new(&cfg, self.fs_hz);
+        twin.settle(self.drive[0]);
+        let n = self.drive.len();
+        let mut sim = Simulation {
+            clean_v: Vec::with_capacity(n),
+            base_nm: Vec::with_capacity(n),
+            in_contact: Vec::with_capacity(n),
+            indentation_m: Vec::with_capacity(n),
+        };
+        for &d in &self.drive {
+            let s = twin.step(d);
+            if !s.deflection_v.is_finite() {
+                return None;
+            }
+            sim.clean_v.push(s.deflection_v);
+            sim.base_nm.push(s.truth.base_nm);
+            sim.in_contact.push(s.truth.in_contact);
+            sim.indentation_m.push(s.truth.indentation_m);
+        }
+        Some(sim)
+    }
+
+    /// Columns of the closed-form part: the offset, then each linear effect's regressors.
+    fn regressors(&self, spec: &ModelSpec, sim: &Simulation) -> Vec<Vec<f64>> {
+        let n = self.drive.len();
+        let mut cols = vec![vec![1.0; n]];
+        for &e in &spec.effects {
+            match e {
+                Effect::ThermalDrift => cols.push(self.t_s.clone()),
+                Effect::MainsInterference => {
+                    let w = 2.0 * std::f64::consts::PI * self.mains_hz;
+                    cols.push(self.t_s.iter().map(|t| (w * t).cos()).collect());
+                    cols.push(self.t_s.iter().map(|t| (w * t).sin()).collect());
+                }
+                Effect::HydrodynamicDrag => {
+                    // The twin's drag: c·ḃ/K nm of deflection, i.e. c·ḃ/(K·C) V.
+                    let kc = self.spring_constant_n_per_m * self.sensitivity_nm_per_v;
+                    let mut col: Vec<f64> = std::iter::once(0.0)
+                        .chain(
+                            sim.base_nm
+                                .windows(2)
+                                .map(|w| (w[1] - w[0]) * self.fs_hz / kc),
+                        )
+                        .collect();
+                    col[0] = col.get(1).copied().unwrap_or(0.0);
+                    cols.push(col);
+                }
+                Effect::DetectorNonlinearity => {
+                    cols.push(sim.clean_v.iter().map(|v| v * v).collect());
+                    cols.push(sim.clean_v.iter().map(|v| v * v * v).collect());
+                }
+                _ => {}
+            }
+        }
+        cols
+    }
+
+    /// Applies the whitening filter.
+    pub fn whiten(&self, x: &[f64]) -> Vec<f64> {
+        let a = &self.whitening;
+        (0..x.len())
+            .map(|k| {
+                let mut s = x[k];
+                for (i, ai) in a.iter().enumerate().skip(1) {
+                    if k >= i {
+                        s += ai * x[k - i];
+                    } else {
+                        // Before the record: repeat the first sample (a record at rest).
+                        s += ai * x[0];
+                    }
+                }
+                s
+            })
+            .collect()
+    }
+
+    /// Evaluates θ: simulation, closed-form coefficients on the train samples, χ² on both sets.
+    pub fn evaluate(&self, spec: &ModelSpec, th: &[f64]) -> Option<Evaluation> {
+        let sim = self.simulate(spec, th)?;
+        let r0: Vec<f64> = self
+            .deflection_v
+            .iter()
+            .zip(&sim.clean_v)
+            .map(|(y, m)| y - m)
+            .collect();
+        let cols = self.regressors(spec, &sim);
+        let wr = self.whiten(&r0);
+        let wcols: Vec<Vec<f64>> = cols.iter().map(|c| self.whiten(c)).collect();
+        let m = cols.len();
+        // Normal equations on the train rows, columns scaled to unit norm for conditioning.
+        let norms: Vec<f64> = wcols
+            .iter()
+            .map(|c| {
+                self.train
+                    .iter()
+                    .map(|&i| c[i] * c[i])
+                    .sum::<f64>()
+                    .sqrt()
+                    .max(1e-300)
+            })
+            .collect();
+        let mut ata = DMatrix::<f64>::zeros(m, m);
+        let mut atb = DVector::<f64>::zeros(m);
+        for &i in &self.train {
+            for a in 0..m {
+                let xa = wcols[a][i] / norms[a];
+                atb[a] += xa * wr[i];
+                for b in a..m {
+                    ata[(a, b)] += xa * wcols[b][i] / norms[b];
+                }
+            }
+        }
+        for a in 0..m {
+            for b in 0..a {
+                ata[(a, b)] = ata[(b, a)];
+            }
+            ata[(a, a)] += 1e-12;
+        }
+        let chol = ata.cholesky()?;
+        let beta_scaled = chol.solve(&atb);
+        let inv = chol.inverse();
+        let linear: Vec<f64> = (0..m).map(|a| beta_scaled[a] / norms[a]).collect();
+        let linear_sd: Vec<f64> = (0..m)
+            .map(|a| inv[(a, a)].max(0.0).sqrt() * self.sigma_w_v / norms[a])
+            .collect();
+        let mut residual_v = r0;
+        let mut wres = wr;
+        for (a, c) in cols.iter().enumerate() {
+            for (k, r) in residual_v.iter_mut().enumerate() {
+                *r -= linear[a] * c[k];
+            }
+            for (k, r) in wres.iter_mut().enumerate() {
+                *r -= linear[a] * wcols[a][k];
+            }
+        }
+        let s = self.sigma_w_v;
+        let train_residuals: Vec<f64> = self.train.iter().map(|&i| wres[i] / s).collect();
+        let chi2_train: f64 = train_residuals.iter().map(|v| v * v).sum();
+        let chi2_held: f64 = self.held.iter().map(|&i| (wres[i] / s).powi(2)).sum();
+        if !(chi2_train.is_finite() && chi2_held.is_finite()) {
+            return None;
+        }
+        Some(Evaluation {
+            train_residuals,
+            chi2_train,
+            chi2_held,
+            residual_v,
+            linear,
+            linear_sd,
+            sim,
+        })
+    }
+
+    /// Reported parameters of `effect` in a fitted model: `(name, unit, value, ci95)`.
+    pub fn effect_params(
+        &self,
+        spec: &ModelSpec,
+        th: &[f64],
+        sd: &[f64],
+        linear: &[f64],
+        linear_sd: &[f64],
+        effect: Effect,
+    ) -> Vec<(String, &'static str, f64, [f64; 2])> {
+        let mut out = Vec::new();
+        if let Some(o) = spec.offset_of(effect) {
+            let names = effect.nonlinear_names(&self.declared_tip);
+            for (i, (name, unit)) in names.iter().enumerate() {
+                let (x, s) = (th[o + i], sd.get(o + i).copied().unwrap_or(f64::NAN));
+                let (v, ci) = if effect == Effect::PiezoHysteresis && i == 2 {
+                    // γ = β·tanh(s): report γ with the interval mapped through.
+                    let beta = th[o + 1].exp();
+                    (
+                        beta * x.tanh(),
+                        [beta * (x - 1.96 * s).tanh(), beta * (x + 1.96 * s).tanh()],
+                    )
+                } else {
+                    (x.exp(), [(x - 1.96 * s).exp(), (x + 1.96 * s).exp()])
+                };
+                out.push((name.to_string(), *unit, v, ci));
+            }
+        }
+        if effect == Effect::TipGeometry {
+            let shape = match self.declared_tip {
+                TipConfig::Sphere { .. } => 2.0,
+                TipConfig::Cone { .. } => 1.5,
+            };
+            out.push(("indentation_exponent".into(), "1", shape, [shape, shape]));
+        }
+        // Linear coefficients: index 0 is the offset; effects follow in spec order.
+        let mut idx = 1;
+        for &e in &spec.effects {
+            let names = e.linear_names(self.mains_hz);
+            for (name, unit) in names {
+                if e == effect {
+                    let v = linear.get(idx).copied().unwrap_or(f64::NAN);
+                    let s = linear_sd.get(idx).copied().unwrap_or(f64::NAN);
+                    out.push((name, unit, v, [v - 1.96 * s, v + 1.96 * s]));
+                }
+                idx += 1;
+            }
+        }
+        if effect == Effect::MainsInterference {
+            let i = idx_of(spec, effect, self.mains_hz);
+            let (c, s) = (linear[i], linear[i + 1]);
+            out.push(("amplitude_v".into(), "V", c.hypot(s), [f64::NAN, f64::NAN]));
+            out.push((
+                "freq_hz".into(),
+                "Hz",
+                self.mains_hz,
+                [self.mains_hz, self.mains_hz],
+            ));
+        }
+        out
+    }
+
+    /// Number of linear coefficients of a spec (offset included).
+    pub fn n_linear(&self, spec: &ModelSpec) -> usize {
+        1 + spec
+            .effects
+            .iter()
+            .map(|e| e.linear_names(self.mains_hz).len())
+            .sum::<usize>()
+    }
+}
+
+fn idx_of(spec: &ModelSpec, effect: Effect, mains_hz: f64) -> usize {
+    let mut idx = 1;
+    for &e in &spec.effects {
+        if e == effect {
+            return idx;
+        }
+        idx += e.linear_names(mains_hz).len();
+    }
+    idx
+}
+
+/// Total parameter count of a spec (nonlinear + closed-form), for information criteria.
+pub fn n_params(problem: &Problem, spec: &ModelSpec) -> usize {
+    spec.n_nonlinear() + problem.n_linear(spec)
+}
