@@ -5,7 +5,7 @@ use anyhow::Context;
 use clap::Args;
 use serde_json::{json, Map, Value};
 use std::path::{Path, PathBuf};
-use viscoprobe_core::analysis::{fit_recording, Terms};
+use viscoprobe_core::analysis::{fit_recording, RecordingFit, Terms};
 use viscoprobe_core::jpk::JpkForce;
 use viscoprobe_core::prony::PronySeries;
 use viscoprobe_core::recording::Recording;
@@ -23,6 +23,9 @@ pub struct FitArgs {
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
+    /// Write `fit.svg`, `residuals.svg` and `moduli.svg` into this directory (created).
+    #[arg(long, value_name = "DIR")]
+    pub plot: Option<PathBuf>,
 }
 
 #[derive(Debug, Args)]
@@ -160,8 +163,17 @@ pub fn run_fit(args: FitArgs) -> anyhow::Result<()> {
         "notes": fit.notes,
         "warnings": est.diagnostics.warnings,
     });
+    let plots = match &args.plot {
+        Some(dir) => write_plots(dir, &fit)?,
+        None => Vec::new(),
+    };
     if args.json {
-        return print_json(&out);
+        print_json(&out)?;
+        // stdout is the JSON document: the written paths go to stderr.
+        for p in &plots {
+            eprintln!("wrote {}", p.display());
+        }
+        return Ok(());
     }
     println!(
         "{} — {} samples at {} Hz",
@@ -242,5 +254,291 @@ pub fn run_fit(args: FitArgs) -> anyhow::Result<()> {
         println!("note: {w}");
     }
     let _ = PronySeries::param_names(n);
+    for p in &plots {
+        println!("wrote {}", p.display());
+    }
+    Ok(())
+}
+
+fn plot_err<E: std::fmt::Debug>(e: E) -> anyhow::Error {
+    anyhow::anyhow!("{e:?}")
+}
+
+/// Writes `fit.svg`, `residuals.svg` and `moduli.svg` into `dir`; returns their paths.
+pub fn write_plots(dir: &Path, fit: &RecordingFit) -> anyhow::Result<Vec<PathBuf>> {
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let paths = [
+        dir.join("fit.svg"),
+        dir.join("residuals.svg"),
+        dir.join("moduli.svg"),
+    ];
+    plot_fit(&paths[0], fit).with_context(|| format!("writing {}", paths[0].display()))?;
+    plot_residuals(&paths[1], fit).with_context(|| format!("writing {}", paths[1].display()))?;
+    plot_moduli(&paths[2], fit).with_context(|| format!("writing {}", paths[2].display()))?;
+    Ok(paths.to_vec())
+}
+
+const PLOT_W: u32 = 1000;
+const PLOT_H: u32 = 560;
+/// `y = h^{3/2}` from m^{3/2} to µm^{3/2}.
+const Y_UM32: f64 = 1e9;
+
+/// (min, max) of finite values, padded by 5 % (a flat series gets a unit-sized range).
+fn padded_range(values: impl Iterator<Item = f64>) -> (f64, f64) {
+    let (lo, hi) = values
+        .filter(|v| v.is_finite())
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
+            (a.min(v), b.max(v))
+        });
+    if !lo.is_finite() {
+        return (-1.0, 1.0);
+    }
+    let pad = if hi > lo {
+        0.05 * (hi - lo)
+    } else {
+        lo.abs().max(1e-12)
+    };
+    (lo - pad, hi + pad)
+}
+
+fn time_range(p: &viscoprobe_core::analysis::Prepared) -> (f64, f64) {
+    let t0 = p.time_s.first().copied().unwrap_or(0.0);
+    let t1 = p.time_s.last().copied().unwrap_or(1.0);
+    if t1 > t0 {
+        (t0, t1)
+    } else {
+        (t0, t0 + 1.0)
+    }
+}
+
+/// Data and model in the linear domain `y = h^{3/2}` over the in-contact window; the samples
+/// the estimator used are marked.
+fn plot_fit(path: &Path, fit: &RecordingFit) -> anyhow::Result<()> {
+    use plotters::prelude::*;
+    let p = &fit.prepared;
+    let (t0, t1) = time_range(p);
+    let (lo, hi) = padded_range(fit.yhat.iter().chain(&p.y).map(|v| v * Y_UM32));
+    let root = SVGBackend::new(path, (PLOT_W, PLOT_H)).into_drawing_area();
+    root.fill(&WHITE).map_err(plot_err)?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            format!(
+                "Data and model, y = h^3/2 over the in-contact window ({} terms, NRMSE {:.4})",
+                fit.estimate.model.order(),
+                fit.nrmse
+            ),
+            ("sans-serif", 18),
+        )
+        .margin(15)
+        .x_label_area_size(40)
+        .y_label_area_size(70)
+        .build_cartesian_2d(t0..t1, lo..hi)
+        .map_err(plot_err)?;
+    chart
+        .configure_mesh()
+        .x_desc("time, s")
+        .y_desc("y = h^3/2, µm^3/2")
+        .draw()
+        .map_err(plot_err)?;
+    let fitted = fit.fitted.clone();
+    if fitted.start > 0 || fitted.end < p.y.len() {
+        let (fa, fb) = (p.time_s[fitted.start], p.time_s[fitted.end - 1]);
+        chart
+            .draw_series(std::iter::once(Rectangle::new(
+                [(fa, lo), (fb, hi)],
+                BLACK.mix(0.06).filled(),
+            )))
+            .map_err(plot_err)?
+            .label("fitted samples")
+            .legend(|(x, y)| {
+                Rectangle::new([(x, y - 5), (x + 18, y + 5)], BLACK.mix(0.15).filled())
+            });
+    }
+    chart
+        .draw_series(LineSeries::new(
+            p.time_s.iter().zip(&p.y).map(|(t, y)| (*t, y * Y_UM32)),
+            BLUE.mix(0.7),
+        ))
+        .map_err(plot_err)?
+        .label("data")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLUE));
+    chart
+        .draw_series(LineSeries::new(
+            p.time_s
+                .iter()
+                .zip(&fit.yhat)
+                .map(|(t, y)| (*t, y * Y_UM32)),
+            RED.stroke_width(2),
+        ))
+        .map_err(plot_err)?
+        .label("model")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], RED.stroke_width(2)));
+    chart
+        .configure_series_labels()
+        .border_style(BLACK)
+        .background_style(WHITE.mix(0.8))
+        .draw()
+        .map_err(plot_err)?;
+    root.present().map_err(plot_err)?;
+    Ok(())
+}
+
+/// Residual `y − ŷ` over the window (µm^{3/2}); the fitted samples drawn darker.
+fn plot_residuals(path: &Path, fit: &RecordingFit) -> anyhow::Result<()> {
+    use plotters::prelude::*;
+    let p = &fit.prepared;
+    let (t0, t1) = time_range(p);
+    let r: Vec<f64> =
+        p.y.iter()
+            .zip(&fit.yhat)
+            .map(|(y, m)| (y - m) * Y_UM32)
+            .collect();
+    let (lo, hi) = padded_range(r.iter().copied().chain([0.0]));
+    let root = SVGBackend::new(path, (PLOT_W, PLOT_H)).into_drawing_area();
+    root.fill(&WHITE).map_err(plot_err)?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            format!(
+                "Residuals y − ŷ (lag-1 correlation {:.3}; Ljung–Box Q = {:.1}, {})",
+                fit.residual_lag1,
+                fit.whiteness.ljung_box_q,
+                if fit.whiteness.white {
+                    "white at 5 %"
+                } else {
+                    "not white at 5 %"
+                }
+            ),
+            ("sans-serif", 18),
+        )
+        .margin(15)
+        .x_label_area_size(40)
+        .y_label_area_size(70)
+        .build_cartesian_2d(t0..t1, lo..hi)
+        .map_err(plot_err)?;
+    chart
+        .configure_mesh()
+        .x_desc("time, s")
+        .y_desc("residual, µm^3/2")
+        .draw()
+        .map_err(plot_err)?;
+    chart
+        .draw_series(LineSeries::new(vec![(t0, 0.0), (t1, 0.0)], BLACK))
+        .map_err(plot_err)?;
+    let all: Vec<(f64, f64)> = p.time_s.iter().copied().zip(r.iter().copied()).collect();
+    chart
+        .draw_series(LineSeries::new(all.clone(), BLUE.mix(0.35)))
+        .map_err(plot_err)?
+        .label("outside the fitted samples")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLUE.mix(0.35)));
+    chart
+        .draw_series(LineSeries::new(
+            all[fit.fitted.clone()].iter().copied(),
+            BLUE,
+        ))
+        .map_err(plot_err)?
+        .label("fitted samples")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLUE));
+    chart
+        .configure_series_labels()
+        .border_style(BLACK)
+        .background_style(WHITE.mix(0.8))
+        .draw()
+        .map_err(plot_err)?;
+    root.present().map_err(plot_err)?;
+    Ok(())
+}
+
+/// E′ and E″ (kPa, log-log) and tan δ over the band the fit reports.
+fn plot_moduli(path: &Path, fit: &RecordingFit) -> anyhow::Result<()> {
+    use plotters::prelude::*;
+    let model = &fit.estimate.model;
+    let [f_lo, mut f_hi] = fit.band_hz;
+    if f_hi <= f_lo {
+        f_hi = f_lo * 10.0;
+    }
+    let rows: Vec<[f64; 4]> = (0..=80)
+        .map(|i| {
+            let f = f_lo * (f_hi / f_lo).powf(i as f64 / 80.0);
+            let w = 2.0 * std::f64::consts::PI * f;
+            [
+                f,
+                model.storage_modulus(w) / 1e3,
+                model.loss_modulus(w) / 1e3,
+                model.loss_tangent(w),
+            ]
+        })
+        .collect();
+    let positive = |v: f64| v.is_finite() && v > 0.0;
+    let ys = rows
+        .iter()
+        .flat_map(|r| [r[1], r[2]])
+        .filter(|v| positive(*v));
+    let (mut ymin, mut ymax) = ys.fold((f64::INFINITY, 0.0f64), |(a, b), v| (a.min(v), b.max(v)));
+    if !positive(ymin) || !positive(ymax) {
+        (ymin, ymax) = (1e-3, 1.0);
+    }
+    let root = SVGBackend::new(path, (PLOT_W, PLOT_H)).into_drawing_area();
+    root.fill(&WHITE).map_err(plot_err)?;
+    let (left, right) = root.split_horizontally(PLOT_W * 3 / 5);
+    let mut c = ChartBuilder::on(&left)
+        .caption(
+            format!("Storage E′ and loss E″ modulus, {f_lo:.3}–{f_hi:.1} Hz"),
+            ("sans-serif", 16),
+        )
+        .margin(10)
+        .x_label_area_size(40)
+        .y_label_area_size(70)
+        .build_cartesian_2d(
+            (f_lo..f_hi).log_scale(),
+            (ymin / 1.5..ymax * 1.5).log_scale(),
+        )
+        .map_err(plot_err)?;
+    c.configure_mesh()
+        .x_desc("frequency, Hz")
+        .y_desc("modulus, kPa")
+        .draw()
+        .map_err(plot_err)?;
+    for (col, color, label) in [(1usize, BLUE, "E′"), (2, RED, "E″")] {
+        c.draw_series(LineSeries::new(
+            rows.iter()
+                .filter(|q| positive(q[col]))
+                .map(|q| (q[0], q[col])),
+            color.stroke_width(2),
+        ))
+        .map_err(plot_err)?
+        .label(label)
+        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2)));
+    }
+    c.configure_series_labels()
+        .border_style(BLACK)
+        .background_style(WHITE.mix(0.8))
+        .draw()
+        .map_err(plot_err)?;
+    let tmax = rows
+        .iter()
+        .map(|q| q[3])
+        .filter(|v| v.is_finite())
+        .fold(0.0, f64::max)
+        * 1.1;
+    let mut t = ChartBuilder::on(&right)
+        .caption("loss tangent tan δ", ("sans-serif", 16))
+        .margin(10)
+        .x_label_area_size(40)
+        .y_label_area_size(50)
+        .build_cartesian_2d((f_lo..f_hi).log_scale(), 0.0..tmax.max(1e-3))
+        .map_err(plot_err)?;
+    t.configure_mesh()
+        .x_desc("frequency, Hz")
+        .y_desc("tan δ")
+        .draw()
+        .map_err(plot_err)?;
+    t.draw_series(LineSeries::new(
+        rows.iter()
+            .filter(|q| q[3].is_finite())
+            .map(|q| (q[0], q[3])),
+        GREEN.stroke_width(2),
+    ))
+    .map_err(plot_err)?;
+    root.present().map_err(plot_err)?;
     Ok(())
 }
