@@ -282,7 +282,15 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
         Drive::Nanometres(v) => (v.clone(), false, 1.0),
     };
     let y = rec.deflection_v.clone();
-    let (contact, base, sigma_head) = find_contact(&y)?;
+    let (contact0, base, sigma_head) = find_contact(&y)?;
+    // The offline fitter's contact point is the better one where long-range forces make the
+    // force creep out of the noise (it treats the contact as a model parameter); the simple
+    // threshold above is the fallback.
+    let contact = crate::analysis::prepare(rec)
+        .map(|p| p.contact_index)
+        .ok()
+        .filter(|&c| c > 0 && c < n)
+        .unwrap_or(contact0);
     let free_end = contact.saturating_sub((contact / 20).max(5));
     let noise = noise::measure(&y[..free_end], fs).unwrap_or_else(|| noise::fallback(&y));
     let declared_tip = match rec.meta.tip {
@@ -383,6 +391,7 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
         max_iterations: 15,
         max_step: 1.0,
     };
+    let distorted = nom.eval.chi2_train / n_tr > 100.0;
     let mut singles: Vec<(Effect, Fitted)> = vec![];
     // Only candidates whose screening already beats the information-criterion penalty are
     // refitted: a refit cannot make a candidate that explains nothing significant.
@@ -419,6 +428,13 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
         let spec = ModelSpec::with(&[*e]);
         let mut st = vec![th_s.clone()];
         st.extend(ctx.starts(&problem, &nom, *e).into_iter().take(1));
+        if distorted {
+            // A nominal fit far above the floor has bent its parameters to mimic what is
+            // missing; start the candidate from the undistorted first estimate as well.
+            let mut first = nom.clone();
+            first.theta = starts[0].clone();
+            st.extend(ctx.starts(&problem, &first, *e).into_iter().take(1));
+        }
         if let Some(f) = fit_model(&problem, &spec, &st, refit_opts) {
             singles.push((*e, f));
         }

@@ -5,6 +5,7 @@ use clap::{Parser, Subcommand};
 
 pub mod client;
 pub mod design;
+pub mod diagnose;
 pub mod fit;
 pub mod reproduce;
 pub mod run;
@@ -25,6 +26,11 @@ pub enum Command {
     Reproduce(reproduce::ReproduceCommand),
     /// Fit a Prony creep compliance to a recording (spec CSV + TOML) or a JPK .jpk-force file.
     Fit(fit::FitArgs),
+    /// Locate where a recording departs from the nominal twin, name the physics left out,
+    /// model it and show the fit improve (spec recording or .jpk-force).
+    Diagnose(diagnose::DiagnoseArgs),
+    /// Run `diagnose` over the concealed-effect corpus: confusion matrix, false positives.
+    DiagnoseBench(diagnose::BenchArgs),
     /// Convert a JPK .jpk-force file into a recording (CSV + TOML sidecar).
     Import(fit::ImportArgs),
     /// Simulate an open-loop measurement on the simulated SPM and write it as a recording.
@@ -56,6 +62,8 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<()> {
         Command::Simulate(args) => simulate::run(args),
         Command::Fit(args) => fit::run_fit(args),
         Command::Import(args) => fit::run_import(args),
+        Command::Diagnose(args) => diagnose::run(args),
+        Command::DiagnoseBench(args) => diagnose::run_bench(args),
         Command::Design(args) => design::run(args),
         Command::Submit(args) => client::submit(args),
         Command::Status(args) => client::status(args),

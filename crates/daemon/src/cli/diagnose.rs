@@ -1,0 +1,620 @@
+//! `viscoprobe diagnose REC` and `viscoprobe diagnose-bench`: where a recording departs from
+//! the nominal twin, which physics was left out, and the proof on the concealed corpus.
+
+use crate::cli::fit::load_recording;
+use crate::output::print_json;
+use anyhow::Context;
+use clap::Args;
+use plotters::prelude::*;
+use serde_json::{json, Value};
+use std::path::{Path, PathBuf};
+use viscoprobe_core::diagnose::bench::{score, CaseOutcome, Score};
+use viscoprobe_core::diagnose::corpus::{concealed_corpus, CorpusCase};
+use viscoprobe_core::diagnose::{diagnose, DiagnoseOptions, Diagnosis, FitSummary};
+
+#[derive(Debug, Args)]
+pub struct DiagnoseArgs {
+    /// A recording (`run.csv` with `run.toml` beside it) or a JPK `.jpk-force` file.
+    pub recording: PathBuf,
+    /// Print JSON (documented in docs/diagnose-json.md).
+    #[arg(long)]
+    pub json: bool,
+    /// Write SVG plots (residuals before/after in time and frequency, data vs models) here.
+    #[arg(long)]
+    pub plot: Option<PathBuf>,
+    /// Tip radius for files that do not record it (JPK), nm.
+    #[arg(long, default_value_t = 5000.0)]
+    pub tip_radius_nm: f64,
+}
+
+#[derive(Debug, Args)]
+pub struct BenchArgs {
+    /// Corpus seeds, comma-separated (each seed gives every effect, masked cases, pairs, nulls).
+    #[arg(long, default_value = "1,2,3")]
+    pub seeds: String,
+    /// Worker threads.
+    #[arg(long, default_value_t = 2)]
+    pub threads: usize,
+    /// Only cases whose name contains this.
+    #[arg(long)]
+    pub filter: Option<String>,
+    /// Print JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+fn summary_json(s: &FitSummary) -> Value {
+    json!({
+        "model": s.model,
+        "held_out_nrmse": s.held_out_nrmse,
+        "held_out_chi2_per_sample": s.held_out_chi2_per_sample,
+        "train_chi2_per_sample": s.train_chi2_per_sample,
+        "material": {
+            "j0_per_pa": s.material.j0_per_pa,
+            "terms": s.material.terms.iter().map(|t| json!({"j_per_pa": t.j_per_pa, "tau_s": t.tau_s})).collect::<Vec<_>>(),
+            "instantaneous_modulus_pa": s.material.instantaneous_modulus(),
+            "relaxed_modulus_pa": s.material.relaxed_modulus(),
+        },
+    })
+}
+
+/// The documented JSON of a diagnosis.
+pub fn diagnosis_json(file: &str, d: &Diagnosis, seconds: f64) -> Value {
+    json!({
+        "file": file,
+        "verdict": d.verdict,
+        "effects": d.effects.iter().map(|e| json!({
+            "id": e.id,
+            "significant": e.significant,
+            "evidence": e.evidence,
+            "train_chi2_drop": e.train_drop,
+            "bic_penalty": if e.bic_penalty.is_finite() { json!(e.bic_penalty) } else { Value::Null },
+            "refitted": e.refitted,
+            "held_out_nrmse": e.held_out_nrmse,
+            "description": e.description,
+            "params": e.params.iter().map(|p| (p.name.clone(), json!({
+                "value": p.value,
+                "unit": p.unit,
+                "ci95": [finite_or_null(p.ci95[0]), finite_or_null(p.ci95[1])],
+            }))).collect::<serde_json::Map<_, _>>(),
+        })).collect::<Vec<_>>(),
+        "fit": {
+            "before_nrmse": d.before.held_out_nrmse,
+            "after_nrmse": d.after.held_out_nrmse,
+            "before": summary_json(&d.before),
+            "after": summary_json(&d.after),
+        },
+        "locations": d.locations_before.iter().filter(|l| l.significant).collect::<Vec<_>>(),
+        "locations_after": d.locations_after.iter().filter(|l| l.significant).collect::<Vec<_>>(),
+        "phases": d.phases.iter().map(|p| json!({
+            "name": p.name,
+            "start_s": p.start as f64 / d.fs_hz,
+            "end_s": p.end as f64 / d.fs_hz,
+        })).collect::<Vec<_>>(),
+        "noise": {
+            "sigma_v": d.noise.sigma_v,
+            "whitened_sigma_v": d.noise.sigma_w_v,
+            "ar_order": d.noise.ar.len() - 1,
+            "samples": d.noise.samples,
+            "source": d.noise.source,
+        },
+        "cost": {"simulations": d.simulations, "seconds": seconds},
+    })
+}
+
+fn finite_or_null(v: f64) -> Value {
+    if v.is_finite() {
+        json!(v)
+    } else {
+        Value::Null
+    }
+}
+
+pub fn run(args: DiagnoseArgs) -> anyhow::Result<()> {
+    let rec = load_recording(&args.recording, args.tip_radius_nm)?;
+    let started = std::time::Instant::now();
+    if !args.json {
+        eprintln!(
+            "diagnosing {} ({} samples at {} Hz): nominal twin, 12 catalog candidates…",
+            args.recording.display(),
+            rec.len(),
+            rec.sample_rate_hz
+        );
+    }
+    let d = diagnose(&rec, &DiagnoseOptions::default())
+        .with_context(|| format!("diagnosing {}", args.recording.display()))?;
+    let seconds = started.elapsed().as_secs_f64();
+    if let Some(dir) = &args.plot {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        let written = write_plots(dir, &d)?;
+        if !args.json {
+            for p in written {
+                println!("wrote {}", p.display());
+            }
+        }
+    }
+    let file = args.recording.display().to_string();
+    if args.json {
+        return print_json(&diagnosis_json(&file, &d, seconds));
+    }
+    print_report(&file, &d, seconds);
+    Ok(())
+}
+
+fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
+    println!(
+        "{file}: diagnosis in {seconds:.1} s ({} twin simulations)",
+        d.simulations
+    );
+    println!(
+        "noise floor: {:.3} mV rms ({:.3} mV whitened, AR order {}), measured on {} samples, {}",
+        d.noise.sigma_v * 1e3,
+        d.noise.sigma_w_v * 1e3,
+        d.noise.ar.len() - 1,
+        d.noise.samples,
+        d.noise.source
+    );
+    let sig: Vec<_> = d.effects.iter().filter(|e| e.significant).collect();
+    match d.verdict {
+        viscoprobe_core::diagnose::Verdict::Mismatch => {
+            println!(
+                "verdict: MISMATCH — the nominal twin left out {}",
+                sig.iter().map(|e| e.id).collect::<Vec<_>>().join(" and ")
+            );
+        }
+        viscoprobe_core::diagnose::Verdict::None => {
+            println!("verdict: NONE — nothing significant is missing: the residual sits at the noise floor");
+        }
+        viscoprobe_core::diagnose::Verdict::Unexplained => {
+            println!("verdict: UNEXPLAINED — a structured residual remains that no catalog effect explains (see where below)");
+        }
+    }
+    for e in &sig {
+        println!("  {} — {}", e.id, e.description);
+        println!(
+            "    evidence: held-out χ² drops by {:.1} (train by {:.1}; BIC penalty {:.1})",
+            e.evidence, e.train_drop, e.bic_penalty
+        );
+        for p in &e.params {
+            if p.ci95[0].is_finite() && p.ci95[1].is_finite() && p.ci95 != [p.value, p.value] {
+                println!(
+                    "    {} = {:.4e} {} (95 % [{:.4e}, {:.4e}])",
+                    p.name, p.value, p.unit, p.ci95[0], p.ci95[1]
+                );
+            } else {
+                println!("    {} = {:.4e} {}", p.name, p.value, p.unit);
+            }
+        }
+    }
+    println!(
+        "fit (held-out samples, never fitted): NRMSE {:.5} before ({}) → {:.5} after ({}), {:+.1} %; χ²/sample {:.3} → {:.3} (1 = noise floor)",
+        d.before.held_out_nrmse,
+        d.before.model,
+        d.after.held_out_nrmse,
+        d.after.model,
+        -100.0 * (1.0 - d.after.held_out_nrmse / d.before.held_out_nrmse),
+        d.before.held_out_chi2_per_sample,
+        d.after.held_out_chi2_per_sample
+    );
+    let m = |s: &FitSummary| {
+        format!(
+            "E_inst {:.4} kPa, E_relaxed {:.4} kPa, τ = {}",
+            s.material.instantaneous_modulus() / 1e3,
+            s.material.relaxed_modulus() / 1e3,
+            s.material
+                .terms
+                .iter()
+                .map(|t| format!("{:.3} ms", t.tau_s * 1e3))
+                .collect::<Vec<_>>()
+                .join(", ")
+        )
+    };
+    println!("material before: {}", m(&d.before));
+    println!("material after:  {}", m(&d.after));
+    println!("where the nominal residual exceeds the floor (z = σ of the floor's own scatter):");
+    let mut any = false;
+    for l in d.locations_before.iter().filter(|l| l.significant).take(8) {
+        any = true;
+        let unit = if l.domain == "frequency" { "Hz" } else { "s" };
+        println!(
+            "  {:<17} {:<32} {:>9.3}–{:<9.3} {unit}  power ×{:.2}, z {:.1}",
+            l.domain, l.name, l.from, l.to, l.power_ratio, l.z
+        );
+    }
+    if !any {
+        println!("  nowhere");
+    }
+    let left: Vec<_> = d
+        .locations_after
+        .iter()
+        .filter(|l| l.significant && (l.domain == "time" || l.domain == "frequency"))
+        .collect();
+    if !sig.is_empty() && !left.is_empty() {
+        println!("still above the floor after the added physics:");
+        for l in left.iter().take(5) {
+            println!("  {:<10} {:<32} z {:.1}", l.domain, l.name, l.z);
+        }
+    }
+    let others: Vec<_> = d
+        .effects
+        .iter()
+        .filter(|e| !e.significant)
+        .take(4)
+        .collect();
+    if !others.is_empty() {
+        println!("other candidates (not kept):");
+        for e in others {
+            println!(
+                "  {:<22} evidence {:>10.1}{}",
+                e.id,
+                e.evidence,
+                if e.refitted { "" } else { " (screened only)" }
+            );
+        }
+    }
+}
+
+fn err<E: std::fmt::Debug>(e: E) -> anyhow::Error {
+    anyhow::anyhow!("{e:?}")
+}
+
+/// Residuals before/after over time, residual spectra against the floor, data vs models.
+fn write_plots(dir: &Path, d: &Diagnosis) -> anyhow::Result<Vec<PathBuf>> {
+    let p1 = dir.join("residual-time.svg");
+    let p2 = dir.join("residual-spectrum.svg");
+    let p3 = dir.join("fit.svg");
+    residual_time(&p1, d).context("residual-time.svg")?;
+    residual_spectrum(&p2, d).context("residual-spectrum.svg")?;
+    fit_plot(&p3, d).context("fit.svg")?;
+    Ok(vec![p1, p2, p3])
+}
+
+fn decimate(x: &[f64], t: &[f64], max: usize) -> Vec<(f64, f64)> {
+    let step = (x.len() / max).max(1);
+    t.iter()
+        .zip(x)
+        .step_by(step)
+        .map(|(a, b)| (*a, *b))
+        .collect()
+}
+
+fn residual_time(path: &Path, d: &Diagnosis) -> anyhow::Result<()> {
+    let rb: Vec<f64> = d
+        .recorded_v
+        .iter()
+        .zip(&d.model_before_v)
+        .map(|(a, b)| (a - b) * 1e3)
+        .collect();
+    let ra: Vec<f64> = d
+        .recorded_v
+        .iter()
+        .zip(&d.model_after_v)
+        .map(|(a, b)| (a - b) * 1e3)
+        .collect();
+    let lim = rb
+        .iter()
+        .chain(&ra)
+        .fold(0.0f64, |m, v| m.max(v.abs()))
+        .max(1e-6);
+    let t_end = *d.t_s.last().unwrap_or(&1.0);
+    let root = SVGBackend::new(path, (1000, 560)).into_drawing_area();
+    root.fill(&WHITE).map_err(err)?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            "Deflection residual, recorded − model (phases shaded)",
+            ("sans-serif", 18),
+        )
+        .margin(15)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(0.0..t_end, -lim..lim)
+        .map_err(err)?;
+    chart
+        .configure_mesh()
+        .x_desc("time, s")
+        .y_desc("residual, mV")
+        .draw()
+        .map_err(err)?;
+    for (i, p) in d.phases.iter().enumerate() {
+        let c = Palette99::pick(i).mix(0.08);
+        chart
+            .draw_series(std::iter::once(Rectangle::new(
+                [
+                    (p.start as f64 / d.fs_hz, -lim),
+                    (p.end as f64 / d.fs_hz, lim),
+                ],
+                c.filled(),
+            )))
+            .map_err(err)?
+            .label(p.name)
+            .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 12, y + 5)], c.filled()));
+    }
+    chart
+        .draw_series(LineSeries::new(decimate(&rb, &d.t_s, 5000), RED.mix(0.7)))
+        .map_err(err)?
+        .label(format!("before: {}", d.before.model))
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED));
+    chart
+        .draw_series(LineSeries::new(decimate(&ra, &d.t_s, 5000), BLUE.mix(0.7)))
+        .map_err(err)?
+        .label(format!("after: {}", d.after.model))
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE));
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()
+        .map_err(err)?;
+    root.present().map_err(err)?;
+    Ok(())
+}
+
+/// Periodogram of the whitened residual, averaged in 1/12-decade bins: 1 is the noise floor.
+fn whitened_spectrum(e: &[f64], fs: f64) -> Vec<(f64, f64)> {
+    use rustfft::{num_complex::Complex64, FftPlanner};
+    let n = e.len();
+    let fft = FftPlanner::new().plan_fft_forward(n);
+    let mut buf: Vec<Complex64> = e.iter().map(|v| Complex64::new(*v, 0.0)).collect();
+    fft.process(&mut buf);
+    let df = fs / n as f64;
+    let mut out = vec![];
+    let mut f = df;
+    while f < fs / 2.0 {
+        let f2 = f * 10f64.powf(1.0 / 12.0);
+        let (k0, k1) = (
+            (f / df).ceil() as usize,
+            ((f2 / df).ceil() as usize).min(n / 2),
+        );
+        if k1 > k0 {
+            let p = buf[k0..k1]
+                .iter()
+                .map(|c| c.norm_sqr() / n as f64)
+                .sum::<f64>()
+                / (k1 - k0) as f64;
+            out.push(((f * f2).sqrt(), p.max(1e-6)));
+        }
+        f = f2;
+    }
+    out
+}
+
+fn residual_spectrum(path: &Path, d: &Diagnosis) -> anyhow::Result<()> {
+    let b = whitened_spectrum(&d.whitened_before, d.fs_hz);
+    let a = whitened_spectrum(&d.whitened_after, d.fs_hz);
+    let hi = b.iter().chain(&a).map(|p| p.1).fold(10.0f64, f64::max) * 2.0;
+    let f_lo = b.first().map_or(0.1, |p| p.0);
+    let root = SVGBackend::new(path, (1000, 560)).into_drawing_area();
+    root.fill(&WHITE).map_err(err)?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            "Residual spectrum relative to the measured noise floor (whitened; 1 = floor)",
+            ("sans-serif", 18),
+        )
+        .margin(15)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d((f_lo..d.fs_hz / 2.0).log_scale(), (0.1f64..hi).log_scale())
+        .map_err(err)?;
+    chart
+        .configure_mesh()
+        .x_desc("frequency, Hz")
+        .y_desc("power / floor")
+        .draw()
+        .map_err(err)?;
+    chart
+        .draw_series(LineSeries::new(
+            vec![(f_lo, 1.0), (d.fs_hz / 2.0, 1.0)],
+            BLACK.stroke_width(2),
+        ))
+        .map_err(err)?
+        .label("noise floor")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK));
+    chart
+        .draw_series(LineSeries::new(b, RED))
+        .map_err(err)?
+        .label(format!("before: {}", d.before.model))
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED));
+    chart
+        .draw_series(LineSeries::new(a, BLUE))
+        .map_err(err)?
+        .label(format!("after: {}", d.after.model))
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE));
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()
+        .map_err(err)?;
+    root.present().map_err(err)?;
+    Ok(())
+}
+
+fn fit_plot(path: &Path, d: &Diagnosis) -> anyhow::Result<()> {
+    let (lo, hi) = d
+        .recorded_v
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
+            (a.min(*v), b.max(*v))
+        });
+    let pad = 0.05 * (hi - lo).max(1e-9);
+    let t_end = *d.t_s.last().unwrap_or(&1.0);
+    let root = SVGBackend::new(path, (1000, 560)).into_drawing_area();
+    root.fill(&WHITE).map_err(err)?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption("Recorded deflection and the two models", ("sans-serif", 18))
+        .margin(15)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(0.0..t_end, (lo - pad)..(hi + pad))
+        .map_err(err)?;
+    chart
+        .configure_mesh()
+        .x_desc("time, s")
+        .y_desc("deflection, V")
+        .draw()
+        .map_err(err)?;
+    for (data, color, label) in [
+        (&d.recorded_v, BLACK.mix(0.5), "recorded".to_string()),
+        (
+            &d.model_before_v,
+            RED.mix(0.8),
+            format!("before: {}", d.before.model),
+        ),
+        (
+            &d.model_after_v,
+            BLUE.mix(0.8),
+            format!("after: {}", d.after.model),
+        ),
+    ] {
+        chart
+            .draw_series(LineSeries::new(decimate(data, &d.t_s, 5000), color))
+            .map_err(err)?
+            .label(label)
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color));
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()
+        .map_err(err)?;
+    root.present().map_err(err)?;
+    Ok(())
+}
+
+/// Runs the engine over corpus cases on `threads` workers (the core is single-threaded by
+/// design; parallelism belongs here). `progress` is called after each case.
+pub fn run_corpus(
+    cases: &[CorpusCase],
+    threads: usize,
+    progress: impl Fn(&CaseOutcome, usize, usize) + Sync,
+) -> anyhow::Result<Vec<CaseOutcome>> {
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let done = std::sync::atomic::AtomicUsize::new(0);
+    let out = std::sync::Mutex::new(Vec::<(usize, anyhow::Result<CaseOutcome>)>::new());
+    std::thread::scope(|s| {
+        for _ in 0..threads.max(1) {
+            s.spawn(|| loop {
+                let i = next.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+                let Some(c) = cases.get(i) else { break };
+                let t0 = std::time::Instant::now();
+                let r = diagnose(&c.recording, &DiagnoseOptions::default())
+                    .map(|d| CaseOutcome::new(&c.name, &c.effects, &d, t0.elapsed().as_secs_f64()))
+                    .with_context(|| format!("case {}", c.name));
+                if let Ok(o) = &r {
+                    let k = done.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1;
+                    progress(o, k, cases.len());
+                }
+                if let Ok(mut g) = out.lock() {
+                    g.push((i, r));
+                }
+            });
+        }
+    });
+    let mut v = out
+        .into_inner()
+        .map_err(|_| anyhow::anyhow!("a worker panicked"))?;
+    v.sort_by_key(|x| x.0);
+    v.into_iter().map(|x| x.1).collect()
+}
+
+fn score_json(s: &Score, outcomes: &[CaseOutcome]) -> Value {
+    json!({
+        "effect_cases": s.effect_cases,
+        "top1_correct": s.top_correct,
+        "top1_accuracy": s.top_correct as f64 / s.effect_cases.max(1) as f64,
+        "null_cases": s.null_cases,
+        "null_false_positives": s.null_false_positives,
+        "false_positive_rate": s.null_false_positives as f64 / s.null_cases.max(1) as f64,
+        "improved_30_percent": s.improved_30,
+        "confusion": s.confusion.iter().map(|(t, p, n)| json!({"truth": t, "top": p, "count": n})).collect::<Vec<_>>(),
+        "cases": outcomes.iter().map(|o| json!({
+            "name": o.name, "truth": o.truth, "top": o.top, "significant": o.significant,
+            "verdict": o.verdict, "before_nrmse": o.before_nrmse, "after_nrmse": o.after_nrmse,
+            "seconds": o.seconds,
+        })).collect::<Vec<_>>(),
+    })
+}
+
+pub fn run_bench(args: BenchArgs) -> anyhow::Result<()> {
+    let seeds: Vec<u64> = args
+        .seeds
+        .split(',')
+        .map(|s| {
+            s.trim()
+                .parse::<u64>()
+                .with_context(|| format!("--seeds: {s:?} is not a whole number"))
+        })
+        .collect::<anyhow::Result<_>>()?;
+    eprintln!("generating the concealed corpus for seeds {seeds:?}…");
+    let mut cases = concealed_corpus(&seeds);
+    if let Some(f) = &args.filter {
+        cases.retain(|c| c.name.contains(f.as_str()));
+    }
+    anyhow::ensure!(!cases.is_empty(), "no corpus case matches");
+    let quiet = args.json;
+    let outcomes = run_corpus(&cases, args.threads, |o, k, n| {
+        if !quiet {
+            let mark = if o.is_null() {
+                if o.significant.is_empty() {
+                    "ok "
+                } else {
+                    "FP "
+                }
+            } else if o.top_correct() {
+                "ok "
+            } else {
+                "MISS"
+            };
+            eprintln!(
+                "[{k:>2}/{n}] {mark:<4} {:<50} top {:<22} NRMSE {:+.0} %  {:.1} s",
+                o.name,
+                o.top.as_deref().unwrap_or("—"),
+                -100.0 * o.improvement(),
+                o.seconds
+            );
+        }
+    })?;
+    let s = score(&outcomes);
+    if args.json {
+        return print_json(&score_json(&s, &outcomes));
+    }
+    println!("confusion (rows: truth; columns: top-ranked significant effect):");
+    let mut cols: Vec<&str> = s.confusion.iter().map(|c| c.1.as_str()).collect();
+    cols.sort();
+    cols.dedup();
+    let mut rows: Vec<&str> = s.confusion.iter().map(|c| c.0.as_str()).collect();
+    rows.sort();
+    rows.dedup();
+    for r in rows {
+        let cells: Vec<String> = s
+            .confusion
+            .iter()
+            .filter(|c| c.0 == r)
+            .map(|c| format!("{}×{}", c.1, c.2))
+            .collect();
+        println!("  {r:<24} → {}", cells.join(", "));
+    }
+    println!(
+        "top-1 accuracy on effect cases: {}/{} = {:.1} %",
+        s.top_correct,
+        s.effect_cases,
+        100.0 * s.top_correct as f64 / s.effect_cases.max(1) as f64
+    );
+    println!(
+        "false positives on null cases: {}/{} = {:.1} %",
+        s.null_false_positives,
+        s.null_cases,
+        100.0 * s.null_false_positives as f64 / s.null_cases.max(1) as f64
+    );
+    println!(
+        "held-out NRMSE improved by ≥ 30 %: {}/{} effect cases",
+        s.improved_30, s.effect_cases
+    );
+    let worst = outcomes.iter().map(|o| o.seconds).fold(0.0, f64::max);
+    println!(
+        "slowest diagnosis: {worst:.1} s ({} samples per recording)",
+        cases[0].recording.len()
+    );
+    Ok(())
+}
