@@ -425,11 +425,13 @@ fn plot_residuals(path: &Path, fit: &RecordingFit) -> anyhow::Result<()> {
         .draw_series(LineSeries::new(vec![(t0, 0.0), (t1, 0.0)], BLACK))
         .map_err(plot_err)?;
     let all: Vec<(f64, f64)> = p.time_s.iter().copied().zip(r.iter().copied()).collect();
-    chart
-        .draw_series(LineSeries::new(all.clone(), BLUE.mix(0.35)))
-        .map_err(plot_err)?
-        .label("outside the fitted samples")
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLUE.mix(0.35)));
+    if fit.fitted.len() < all.len() {
+        chart
+            .draw_series(LineSeries::new(all.clone(), BLUE.mix(0.35)))
+            .map_err(plot_err)?
+            .label("outside the fitted samples")
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLUE.mix(0.35)));
+    }
     chart
         .draw_series(LineSeries::new(
             all[fit.fitted.clone()].iter().copied(),
