@@ -1,0 +1,97 @@
+//! Issue #9: the diagnosis on the project's own concealed-effect corpus (seeds 1, 2, 3: every
+//! catalog effect near the noise floor on each seed, masked cases, pairs, clean and 1/f nulls)
+//! and on the shared real JPK recording.
+//!
+//! What is asserted is what the engine achieves today, as a regression floor — not yet the
+//! issue's acceptance numbers (≥ 90 % top-1, ≥ 30 % held-out NRMSE improvement), which are
+//! not met; see the issue notes. The null-case requirement (no significant effect on any
+//! null) is asserted in full.
+
+use viscoprobe_core::diagnose::bench::score;
+use viscoprobe_core::diagnose::corpus::concealed_corpus;
+use viscoprobe_core::diagnose::{diagnose, DiagnoseOptions};
+use viscoprobe_daemon::cli::diagnose::run_corpus;
+
+#[test]
+fn concealed_corpus_scores() {
+    let cases = concealed_corpus(&[1, 2, 3]);
+    let outcomes = run_corpus(&cases, 2, |o, k, n| {
+        eprintln!("[{k}/{n}] {} → {:?} (truth {:?})", o.name, o.top, o.truth)
+    })
+    .expect("every case diagnoses");
+    let s = score(&outcomes);
+    eprintln!(
+        "top-1 {}/{}, null false positives {}/{}, improved ≥ 30 % {}/{}",
+        s.top_correct,
+        s.effect_cases,
+        s.null_false_positives,
+        s.null_cases,
+        s.improved_30,
+        s.effect_cases
+    );
+    assert!(
+        s.null_cases >= 6,
+        "the corpus has clean and 1/f nulls on 3 seeds"
+    );
+    assert_eq!(
+        s.null_false_positives, 0,
+        "no significant effect on any null case"
+    );
+    let accuracy = s.top_correct as f64 / s.effect_cases as f64;
+    assert!(
+        accuracy >= TOP1_FLOOR,
+        "top-1 accuracy {accuracy:.3} fell below {TOP1_FLOOR}"
+    );
+    // The effects that dominate their signature are found on every seed.
+    for id in [
+        "mains_interference",
+        "thermal_drift",
+        "piezo_hysteresis",
+        "instrument_resonance",
+    ] {
+        for o in outcomes
+            .iter()
+            .filter(|o| o.truth.len() == 1 && o.truth[0] == id)
+        {
+            assert!(o.top_correct(), "{}: top {:?}", o.name, o.top);
+        }
+    }
+}
+
+const TOP1_FLOOR: f64 = 0.6;
+
+/// The real gel recording: the retract pull-off is located as a significant mismatch and the
+/// diagnosis finds physics that improves the held-out fit.
+#[test]
+fn jpk_pull_off_is_located() {
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../shared/data/real/fmt-jpk-cc_pr14-polymergel-2021.06.30.jpk-force"
+    );
+    let bytes = std::fs::read(path).unwrap_or_else(|e| {
+        panic!("the shared JPK fixture `{path}` cannot be read ({e}); this test needs it")
+    });
+    let jpk = viscoprobe_core::jpk::JpkForce::read(std::io::Cursor::new(bytes)).unwrap();
+    let rec = jpk.to_recording(5000.0).unwrap();
+    assert_eq!(rec.len(), 9000);
+    let d = diagnose(&rec, &DiagnoseOptions::default()).unwrap();
+    let pull = d
+        .locations_before
+        .iter()
+        .find(|l| l.name == "pull_off")
+        .expect("a pull-off phase is found on retract");
+    assert!(pull.significant && pull.z > 1e3, "pull-off z {}", pull.z);
+    // The retract starts at 6.0 s (the file's segment table); the pull-off lies after it.
+    assert!(
+        pull.from > 6.0 && pull.to < 7.5,
+        "pull-off at {}–{} s",
+        pull.from,
+        pull.to
+    );
+    assert!(
+        d.after.held_out_nrmse < 0.8 * d.before.held_out_nrmse,
+        "held-out NRMSE {} → {}",
+        d.before.held_out_nrmse,
+        d.after.held_out_nrmse
+    );
+}
