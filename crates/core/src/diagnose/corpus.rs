@@ -19,12 +19,19 @@
 //!
 //! **Sizing rule.** An effect is never sized by trying a detector. The same seed is simulated
 //! with and without the effect, with the same noise realisation, so the noise cancels in the
-//! difference; the effect's parameter is then scaled (a bracketed search on a log scale) until
-//! the RMS of that deflection difference over the whole record is a chosen multiple of the
-//! white-noise σ. This is a raw size: part of it (a gain-like shift from hysteresis or creep,
-//! a stiffer-looking material from a substrate) can be absorbed by refitting the nominal
-//! parameters, so what is left for a detector is smaller still. Exceptions, recorded in each
-//! case's [`EffectSize::note`]:
+//! difference. From that difference the part the nominal twin could absorb is removed: its
+//! projection on the nominal model's tangent space ([`nominal_basis`]: how the deflection moves
+//! with gain, contact point, the compliances and retardation times, and the offset). What is
+//! left is what no nominal refit can explain — the *visible* size of the effect. (A first
+//! version sized the raw difference; hysteresis, creep, detector nonlinearity and a substrate
+//! then hid almost entirely inside a slightly different gain or modulus, which is not a
+//! mismatch at all.) The effect's parameter is scaled (a bracketed search on a log scale) until
+//! the RMS of the visible difference over the whole record is a chosen multiple of the
+//! white-noise σ. Exceptions, recorded in each case's [`EffectSize::note`] (the numbers below
+//! were measured for the raw rule; `print_corpus` lists the current ones):
+//! - `missing_relaxation` and `substrate_effect` may stay *below* the target: a third term is
+//!   bounded (the instantaneous compliance must stay positive) and a film cannot be thinner
+//!   than 150 nm here; a fast third term and a substrate are largely absorbable.
 //! - `tip_geometry` is not continuous: the true tip is a cone while the sidecar declares the
 //!   nominal sphere. Its half angle is chosen by the rule when a cone can come that close to
 //!   the sphere; otherwise the half angle that minimises the difference is used and the larger
@@ -76,6 +83,7 @@ use crate::twin::feedforward::drive_for_force;
 use crate::twin::{
     CantileverConfig, Drag, ReferenceConfig, SampleConfig, TipConfig, TruthSample, Twin, TwinConfig,
 };
+use nalgebra::{DMatrix, DVector};
 
 /// Sample rate of the corpus recordings, Hz.
 pub const FS_HZ: f64 = 4000.0;
@@ -489,8 +497,48 @@ pub fn simulate(
     }
 }
 
-fn rms_diff(a: &[f64], b: &[f64]) -> f64 {
-    (a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum::<f64>() / a.len().max(1) as f64).sqrt()
+/// RMS of the part of `a − b` that the nominal twin cannot absorb: the difference with its
+/// projection on `q` (an orthonormal basis of the nominal model's tangent space) removed.
+fn rms_diff(a: &[f64], b: &[f64], q: &DMatrix<f64>) -> f64 {
+    let d = DVector::from_iterator(a.len(), a.iter().zip(b).map(|(x, y)| x - y));
+    let c = q.transpose() * &d;
+    let v = d - q * c;
+    (v.norm_squared() / a.len().max(1) as f64).sqrt()
+}
+
+/// The nominal twin's tangent space at `base`: how its deflection moves with each nominal
+/// parameter (actuator gain, contact point, the three compliances and two retardation times
+/// of the two-term material, the deflection offset), noise-free, orthonormalised.
+///
+/// This is why effects are sized by what is *visible*: an effect whose deflection change a
+/// slightly different gain or modulus reproduces is not a mismatch of the nominal model at
+/// all, so its raw size says nothing about how concealed it is. Only the part orthogonal to
+/// this space (to first order, what refitting the nominal model leaves) counts.
+pub fn nominal_basis(base: &TwinConfig, drive_v: &[f64]) -> DMatrix<f64> {
+    let mut clean = base.clone();
+    clean.detector = DetectorConfig::default();
+    let d0 = deflection(&clean, drive_v, FS_HZ);
+    let n = drive_v.len();
+    let rel = 1e-4;
+    let mut cols: Vec<Vec<f64>> = vec![vec![1.0; n]];
+    let mut perturbed = |f: &dyn Fn(&mut TwinConfig)| {
+        let mut c = clean.clone();
+        f(&mut c);
+        let d = deflection(&c, drive_v, FS_HZ);
+        cols.push(d.iter().zip(&d0).map(|(a, b)| a - b).collect());
+    };
+    perturbed(&|c| c.actuator.gain_nm_per_v *= 1.0 + rel);
+    perturbed(&|c| c.sample.contact_point_nm += 0.01);
+    perturbed(&|c| c.sample.material.j0_per_pa *= 1.0 + rel);
+    for i in 0..clean.sample.material.terms.len() {
+        perturbed(&|c| {
+            let dj = rel * c.sample.material.terms[i].j_per_pa;
+            c.sample.material.terms[i].j_per_pa += dj;
+        });
+        perturbed(&|c| c.sample.material.terms[i].tau_s *= 1.0 + rel);
+    }
+    let m = DMatrix::from_fn(n, cols.len(), |r, k| cols[k][r]);
+    m.qr().q()
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -739,13 +787,14 @@ struct Sizer<'a> {
     base_defl: &'a [f64],
     drive: &'a [f64],
     sigma: f64,
+    q: &'a DMatrix<f64>,
 }
 
 impl Sizer<'_> {
     fn multiple(&mut self, k: &Knob, p: f64) -> f64 {
         let mut c = self.base.clone();
         k.put(&mut c, p);
-        rms_diff(&deflection(&c, self.drive, FS_HZ), self.base_defl) / self.sigma
+        rms_diff(&deflection(&c, self.drive, FS_HZ), self.base_defl, self.q) / self.sigma
     }
 
     /// Bracketed search (Illinois false position) in log p, log multiple.
@@ -914,11 +963,13 @@ struct Plan {
 fn build(plan: Plan, drive: &[f64], segments: &[Segment]) -> CorpusCase {
     let sigma = plan.base.detector.white_noise_v;
     let base_defl = deflection(&plan.base, drive, FS_HZ);
+    let q = nominal_basis(&plan.base, drive);
     let mut sizer = Sizer {
         base: &plan.base,
         base_defl: &base_defl,
         drive,
         sigma,
+        q: &q,
     };
     let mut sizes: Vec<EffectSize> = plan
         .effects
@@ -939,7 +990,7 @@ fn build(plan: Plan, drive: &[f64], segments: &[Segment]) -> CorpusCase {
         if let Some(sign) = plan.effects[i].0.sign {
             let combined = |effects: &[(Knob, f64)]| {
                 let d = deflection(&with_all(effects, &sizes), drive, FS_HZ);
-                rms_diff(&d, &base_defl)
+                rms_diff(&d, &base_defl, &q)
             };
             let kept = combined(&plan.effects);
             plan.effects[i].0.sign = Some(-sign);
@@ -962,7 +1013,7 @@ fn build(plan: Plan, drive: &[f64], segments: &[Segment]) -> CorpusCase {
     }
     let declared = plan.base.tip;
     let mut recording = simulate(&twin, drive, FS_HZ, Some(declared));
-    let combined_rms_multiple = rms_diff(&recording.deflection_v, &base_defl) / sigma;
+    let combined_rms_multiple = rms_diff(&recording.deflection_v, &base_defl, &q) / sigma;
     let effects: Vec<&'static str> = sizes.iter().map(|s| s.id).collect();
     recording.meta.notes = Some(notes_table(segments));
     recording.meta.truth = Some(truth_table(
@@ -1504,8 +1555,10 @@ mod tests {
             assert_ne!(c.effects[0], c.effects[1]);
             let (a, b) = (&c.sizes[0], &c.sizes[1]);
             assert!(a.rms_multiple >= b.rms_multiple, "{}", c.name);
+            // The visible parts of two effects may overlap a little (both partly along the
+            // same direction), but a pair never hides its stronger effect.
             assert!(
-                c.combined_rms_multiple >= 0.9 * a.rms_multiple,
+                c.combined_rms_multiple >= 0.8 * a.rms_multiple,
                 "{}: combined {} vs {}",
                 c.name,
                 c.combined_rms_multiple,
@@ -1528,9 +1581,11 @@ mod tests {
         let mut b = a.clone();
         b.seed = nominal_twin(2).seed;
         assert_ne!(a.seed, b.seed);
+        let none = DMatrix::<f64>::zeros(drive.len(), 0);
         let d = rms_diff(
             &simulate(&a, &drive, FS_HZ, None).deflection_v,
             &simulate(&b, &drive, FS_HZ, None).deflection_v,
+            &none,
         );
         // Two independent realisations: the difference is σ·√2.
         let s = a.detector.white_noise_v * 2f64.sqrt();
@@ -1550,7 +1605,8 @@ mod tests {
         let drive = drive();
         for c in corpus().iter().filter(|c| c.kind != CaseKind::Null) {
             let base = simulate(&c.baseline, &drive, FS_HZ, None).deflection_v;
-            let m = rms_diff(&c.recording.deflection_v, &base) / c.noise_sigma_v;
+            let q = nominal_basis(&c.baseline, &drive);
+            let m = rms_diff(&c.recording.deflection_v, &base, &q) / c.noise_sigma_v;
             assert!(
                 (m - c.combined_rms_multiple).abs() < 1e-9 * m.max(1.0),
                 "{}",
@@ -1566,9 +1622,19 @@ mod tests {
                         c.name,
                         s.target_multiple
                     ),
+                    Some(note) if note.contains("bound") || note.contains("below the target") => {
+                        // Bounded by physics or by the knob's range (a third term cannot make
+                        // the instantaneous compliance negative; a film cannot be thinner than
+                        // the indentation): the visible size stays below the target.
+                        assert!(m < s.target_multiple, "{}", c.name);
+                    }
+                    Some(note) if s.id == "tip_geometry" => {
+                        // Not continuous: the cone closest to the rule, on either side of it.
+                        assert!((0.1..10.0).contains(&m), "{}: {m} ({note})", c.name);
+                    }
                     Some(note) => {
                         assert!(
-                            ["tip_geometry", "instrument_resonance"].contains(&s.id),
+                            s.id == "instrument_resonance",
                             "{}: unexpected exception {note}",
                             c.name
                         );

@@ -144,7 +144,8 @@ pub fn fit_params(
                         th = trial;
                         eval = e;
                         r = rt;
-                        converged = gain <= 1e-7 * cost.max(1.0) || step.amax() < 1e-7;
+                        // χ² is in units of the noise floor: a gain of 0.01 is statistically nothing.
+                        converged = gain <= 0.01 || gain <= 1e-7 * cost || step.amax() < 1e-7;
                         cost = ct;
                         lambda = (lambda / 4.0).max(1e-9);
                         accepted = true;

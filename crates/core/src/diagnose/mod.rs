@@ -354,8 +354,21 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
         max_iterations: 60,
         max_step: 1.0,
     };
-    let nom =
-        fit_model(&problem, &nominal, &starts, nominal_opts).ok_or(DiagnoseError::NominalFailed)?;
+    // The offline fitter's material is usually the right basin: other starts are tried only
+    // when the fit from it stays well above the floor.
+    let first = fit_model(&problem, &nominal, &starts[..1], nominal_opts);
+    let at_floor = |f: &Fitted| f.eval.chi2_train < 1.2 * problem.train.len() as f64;
+    let nom = match first {
+        Some(f) if at_floor(&f) => f,
+        first => {
+            let rest = fit_model(&problem, &nominal, &starts[1..], nominal_opts);
+            match (first, rest) {
+                (Some(a), Some(b)) if a.eval.chi2_train <= b.eval.chi2_train => a,
+                (_, Some(b)) => b,
+                (a, None) => a.ok_or(DiagnoseError::NominalFailed)?,
+            }
+        }
+    };
     let sims_nominal = problem.simulations.get();
 
     // 2. Locate, on the nominal residual.
@@ -388,7 +401,7 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
     let th = opts.thresholds;
     let n_tr = problem.train.len() as f64;
     let refit_opts = FitOptions {
-        max_iterations: 15,
+        max_iterations: 40,
         max_step: 1.0,
     };
     let distorted = nom.eval.chi2_train / n_tr > 100.0;
@@ -493,8 +506,16 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
     let mut chosen: Option<Fitted> = sig_singles.first().map(|s| s.1.clone());
     let mut chosen_effects: Vec<Effect> =
         sig_singles.first().map(|s| vec![s.0]).unwrap_or_default();
+    // A second effect is looked for only where the best single one leaves the held-out
+    // residual significantly above the floor (5 σ of a χ² over the held-out samples).
+    let n_ho = problem.held.len() as f64;
+    let leaves_structure = |f: &Fitted| f.eval.chi2_held > n_ho + 5.0 * (2.0 * n_ho).sqrt();
     if opts.pairs {
-        if let Some((a, fa, _)) = sig_singles.first().cloned() {
+        if let Some((a, fa, _)) = sig_singles
+            .first()
+            .filter(|s| leaves_structure(&s.1))
+            .cloned()
+        {
             let mut best_pair: Option<(Effect, Fitted, f64)> = None;
             for (b, fb) in singles.iter().filter(|(b, _)| *b != a) {
                 let spec = ModelSpec::with(&[a, *b]);
@@ -753,9 +774,8 @@ impl StartContext {
             .fold(0.0, f64::max)
             * 1e9;
         let kc = problem.spring_constant_n_per_m * problem.sensitivity_nm_per_v;
-        let pull = phases
-            .iter()
-            .find(|p| p.name == "retract")
+        let retract = phases.iter().find(|p| p.name == "retract");
+        let pull = retract
             .map(|p| {
                 y[p.start..p.end]
                     .iter()
