@@ -338,52 +338,93 @@ fn tmp(name: &str) -> PathBuf {
     d
 }
 
-#[test]
-#[ignore = "issue 8 open: 95 % intervals miss the truth by 0.01–0.03 % (a systematic bias the \
-            intervals do not carry), the 4-term multisine is not detected as periodic, and the \
-            4-term creep/relaxation τ4 is ~6 % off; run with --ignored"]
-fn twin_recordings_fit_back_within_two_percent_and_auto_picks_the_order() {
-    let dir = tmp("corpus");
+/// One twin case: simulate, write, read back, fit with `Terms::Auto`, check method and truth.
+fn twin_case(material: usize, exc: Excitation) {
+    let (name, m) = materials().swap_remove(material);
+    let dir = tmp(&format!("{}-{exc:?}", m.order()));
     let t0 = Instant::now();
-    let mut report = Vec::new();
-    let mut failures = Vec::new();
-    for (name, m) in materials() {
-        let cfg = config(&m, None);
-        for exc in [
-            Excitation::Multisine,
-            Excitation::Creep,
-            Excitation::Relaxation,
-        ] {
-            let label = format!("{name}, {exc:?}");
-            let rec = recording(&cfg, exc, &dir, &format!("{}-{exc:?}", m.order()));
-            let fit = fit_recording(&rec, Terms::Auto { max: 5 }).expect(&label);
-            let want = if exc == Excitation::Multisine {
-                FitMethod::FrequencyMl
-            } else {
-                FitMethod::TimeOutputError
-            };
-            if fit.method != want {
-                failures.push(format!(
-                    "{label}: method {:?}, expected {want:?}",
-                    fit.method
-                ));
-            }
-            match check(&label, &fit, &m) {
-                Ok(l) => report.push(l),
-                Err(l) => failures.push(l),
-            }
-        }
-    }
-    eprintln!("{}", report.join("\n"));
-    eprintln!("({:.1} s)", t0.elapsed().as_secs_f64());
+    let cfg = config(&m, None);
+    let label = format!("{name}, {exc:?}");
+    let rec = recording(&cfg, exc, &dir, "rec");
+    let fit = fit_recording(&rec, Terms::Auto { max: 5 }).expect(&label);
     let _ = std::fs::remove_dir_all(&dir);
+    let want = if exc == Excitation::Multisine {
+        FitMethod::FrequencyMl
+    } else {
+        FitMethod::TimeOutputError
+    };
+    let mut failures = Vec::new();
+    if fit.method != want {
+        failures.push(format!(
+            "{label}: method {:?}, expected {want:?}",
+            fit.method
+        ));
+    }
+    match check(&label, &fit, &m) {
+        Ok(l) => eprintln!("{l} ({:.1} s)", t0.elapsed().as_secs_f64()),
+        Err(l) => failures.push(l),
+    }
     assert!(failures.is_empty(), "\n{}", failures.join("\n"));
+}
+
+#[test]
+#[ignore = "issue 8 open: J0 comes out 0.07 % high with the lower edge of its 95 % interval at the truth (1.0000e-4); the other four parameters are covered"]
+fn two_term_multisine() {
+    twin_case(0, Excitation::Multisine);
+}
+
+#[test]
+#[ignore = "issue 8 open: J2 +0.2 %, outside its 95 % interval: errors in variables: the detector noise enters both u (force) and y (indentation), and the output-error fit biases the fastest term"]
+fn two_term_creep() {
+    twin_case(0, Excitation::Creep);
+}
+
+#[test]
+#[ignore = "issue 8 open: J2 +0.2 %, outside its 95 % interval: errors in variables: the detector noise enters both u (force) and y (indentation), and the output-error fit biases the fastest term"]
+fn two_term_relaxation() {
+    twin_case(0, Excitation::Relaxation);
+}
+
+#[test]
+fn three_term_multisine() {
+    twin_case(1, Excitation::Multisine);
+}
+
+#[test]
+fn three_term_creep() {
+    twin_case(1, Excitation::Creep);
+}
+
+#[test]
+#[ignore = "issue 8 open: J3 +0.5 %, outside its 95 % interval: errors in variables: the detector noise enters both u (force) and y (indentation), and the output-error fit biases the fastest term"]
+fn three_term_relaxation() {
+    twin_case(1, Excitation::Relaxation);
+}
+
+#[test]
+#[ignore = "issue 8 open: the 4-term multisine drive is not detected as periodic (analysis::periodic), so it falls back to the time domain and tau4 is 25 % off"]
+fn four_term_multisine() {
+    twin_case(2, Excitation::Multisine);
+}
+
+#[test]
+#[ignore = "issue 8 open: tau4 -6 %, J3 +3 % (5σ): errors in variables: the detector noise enters both u (force) and y (indentation), and the output-error fit biases the fastest term (with the noise-free force as u the same data give tau4 within 1 %)"]
+fn four_term_creep() {
+    twin_case(2, Excitation::Creep);
+}
+
+#[test]
+#[ignore = "issue 8 open: tau4 -6 %, J3 +3 % (5σ): errors in variables: the detector noise enters both u (force) and y (indentation), and the output-error fit biases the fastest term (with the noise-free force as u the same data give tau4 within 1 %)"]
+fn four_term_relaxation() {
+    twin_case(2, Excitation::Relaxation);
 }
 
 /// Required columns only, `time_s` from 12.5 s, no reference channel, no `[notes]`/`[truth]`:
 /// a multisine with `drive_v` on a sphere, and a ramp-and-hold with `drive_nm` on a cone.
 #[test]
-#[ignore = "issue 8 open: see twin_recordings_fit_back_within_two_percent_and_auto_picks_the_order"]
+#[ignore = "issue 8 open: with the indentation taken from the drive, the contact offset (the \
+            drive at the detected contact sample, or the 1-term contact search on a slow rise) \
+            is not fitted: J0 +0.2 % (cone creep) and -2 % (sphere multisine), intervals miss"]
 fn third_party_recordings_fit_the_same_way() {
     let dir = tmp("third-party");
     let mats = materials();

@@ -32,6 +32,7 @@ use crate::estimate::time_domain::{fit_time_domain, TimeFitOptions};
 use crate::estimate::{Estimate, EstimateError, Method};
 use crate::prony::PronySeries;
 use crate::recording::Recording;
+use nalgebra::{DMatrix, DVector};
 use periodic::{detect_periodic, PeriodicRun};
 use thiserror::Error;
 
@@ -63,6 +64,10 @@ pub struct Prepared {
     /// Free-lever deflection at the contact point, V, and its noise, V rms.
     pub baseline_v: f64,
     pub baseline_noise_v: f64,
+    /// Standard error of that baseline level, V (`noise/√n` over the free approach): a
+    /// constant force offset the contact window cannot tell from the compliance, carried
+    /// into the intervals of the time-domain fit.
+    pub baseline_level_sigma_v: f64,
     /// Baseline tilt, V per nm of drive (0 when the approach shows none beyond its noise).
     pub baseline_tilt_v_per_nm: f64,
     /// Where the indentation came from: `reference`, `measured_height` or `drive`.
@@ -86,11 +91,24 @@ struct Baseline {
     b: f64,
     x0: f64,
     noise: f64,
+    /// Samples and `Σ(x − x̄)²` of the fit: the level's standard error at `x`.
+    n: f64,
+    sxx: f64,
 }
 
 impl Baseline {
     fn at(&self, x: f64) -> f64 {
         self.a + self.b * (x - self.x0)
+    }
+
+    /// Standard error of the level at `x`, V.
+    fn sigma_at(&self, x: f64) -> f64 {
+        let lever = if self.b != 0.0 && self.sxx > 0.0 {
+            (x - self.x0).powi(2) / self.sxx
+        } else {
+            0.0
+        };
+        self.noise * (1.0 / self.n.max(1.0) + lever).sqrt()
     }
 
     fn fit(v: &[f64], x: &[f64], tilt: bool) -> Self {
@@ -100,7 +118,7 @@ impl Baseline {
         let sxx: f64 = x.iter().map(|t| (t - xm).powi(2)).sum();
         let sxv: f64 = x.iter().zip(v).map(|(t, w)| (t - xm) * (w - vm)).sum();
         let b = if tilt && sxx > 0.0 { sxv / sxx } else { 0.0 };
-        let mut res: Vec<f64> = x
+        let res: Vec<f64> = x
             .iter()
             .zip(v)
             .map(|(t, w)| w - vm - b * (t - xm))
@@ -115,12 +133,28 @@ impl Baseline {
         if b != 0.0 && b.abs() < 4.0 * b_sigma {
             return Self::fit(v, x, false);
         }
-        let a = if b == 0.0 { median(&mut res) + vm } else { vm };
+        // The level: a mean, not a median. A median of quantised samples is itself a grid
+        // value, off the true level by up to half a converter step even where the noise
+        // dithers the mean to well below it; and the mean's uncertainty (`noise/√n`) is what
+        // the fit propagates into its intervals. Samples beyond 4σ (spikes) are left out.
+        let a = if b == 0.0 {
+            let mid = median(&mut res.clone());
+            let kept: Vec<f64> = res
+                .iter()
+                .copied()
+                .filter(|r| (r - mid).abs() <= 4.0 * noise)
+                .collect();
+            vm + kept.iter().sum::<f64>() / kept.len().max(1) as f64
+        } else {
+            vm
+        };
         Self {
             a,
             b,
             x0: xm,
             noise,
+            n,
+            sxx,
         }
     }
 }
@@ -274,6 +308,7 @@ fn build_window(
         end_index: end,
         baseline_v: bl.at(drive[contact]),
         baseline_noise_v: bl.noise,
+        baseline_level_sigma_v: bl.sigma_at(drive[contact]),
         baseline_tilt_v_per_nm: match &rec.drive {
             crate::recording::Drive::Nanometres(_) => bl.b,
             crate::recording::Drive::Volts(_) => rec
@@ -453,6 +488,58 @@ fn nrmse(y: &[f64], yhat: &[f64]) -> f64 {
     (rss / syy.max(f64::MIN_POSITIVE)).sqrt()
 }
 
+/// `∂ŷ/∂ln θ` over the window (canonical order), by central differences.
+fn log_jacobian(model: &PronySeries, u: &[f64], fs_hz: f64) -> DMatrix<f64> {
+    let p = model.to_vec();
+    let mut jac = DMatrix::zeros(u.len(), p.len());
+    const H: f64 = 1e-6;
+    for i in 0..p.len() {
+        let at = |s: f64| {
+            let mut q = p.clone();
+            q[i] *= s.exp();
+            simulate_foh(&PronySeries::from_vec(&q), u, fs_hz)
+        };
+        let (up, dn) = (at(H), at(-H));
+        for t in 0..u.len() {
+            jac[(t, i)] = (up[t] - dn[t]) / (2.0 * H);
+        }
+    }
+    jac
+}
+
+/// Shift of the log-parameters of a time-domain fit that one standard error of the baseline
+/// level causes. A baseline off by `ε` V lowers the force by `K·C·ε` over the whole window
+/// (and raises a drive-derived indentation by `C·ε`): in a creep or relaxation record that
+/// offset is all but collinear with J0·u, so the fit cannot find it, only carry it — the
+/// fitted parameters move by `(JᵀJ)⁻¹Jᵀ·Δr`, which joins the covariance as a systematic term.
+fn baseline_sensitivity(rec: &Recording, p: &Prepared, model: &PronySeries) -> Option<Vec<f64>> {
+    let sigma = p.baseline_level_sigma_v;
+    if !(sigma.is_finite() && sigma > 0.0) {
+        return None;
+    }
+    let k = rec.meta.cantilever.spring_constant_n_per_m;
+    let c_m = rec.meta.cantilever.deflection_sensitivity_nm_per_v * 1e-9;
+    let contact = rec.meta.contact();
+    let du = contact.u_from_force(k * c_m * sigma);
+    let dh = if p.indentation_source == "reference" {
+        0.0
+    } else {
+        c_m * sigma
+    };
+    // Δr = Δy − Δŷ = (y(h + dh) − y(h)) + J0·du (ŷ is linear and starts at rest).
+    let dr = DVector::from_iterator(
+        p.u.len(),
+        p.indentation_m.iter().map(|&h| {
+            contact.y_from_indentation((h + dh).max(0.0)) - contact.y_from_indentation(h.max(0.0))
+                + model.j0_per_pa * du
+        }),
+    );
+    let jac = log_jacobian(model, &p.u, p.fs_hz);
+    let jtj = jac.transpose() * &jac;
+    let delta = jtj.cholesky()?.solve(&(jac.transpose() * dr));
+    Some(delta.iter().copied().collect())
+}
+
 /// One order's fit and its BIC.
 type OrderFit = Result<(Estimate, f64), EstimateError>;
 
@@ -614,7 +701,7 @@ pub fn fit_recording(rec: &Recording, terms: Terms) -> Result<RecordingFit, FitE
             break;
         }
     }
-    let (method, fitted, candidates, estimate, criterion, band_hz) = match outcome {
+    let (method, fitted, candidates, mut estimate, criterion, band_hz) = match outcome {
         Some(o) => o,
         None => {
             let (candidates, chosen, err) = select(0..len, &time_domain);
@@ -641,6 +728,11 @@ pub fn fit_recording(rec: &Recording, terms: Terms) -> Result<RecordingFit, FitE
              term is not identified; read J(t) at the end of the window, not J0"
                 .into(),
         );
+    }
+    if method == FitMethod::TimeOutputError {
+        if let Some(delta) = baseline_sensitivity(rec, &prepared, &estimate.model) {
+            estimate = estimate.with_systematic(&delta, "the force baseline (free-lever level)");
+        }
     }
     let yhat = simulate_foh(&estimate.model, u, fs);
     let r: Vec<f64> = fitted.clone().map(|i| y[i] - yhat[i]).collect();
