@@ -405,6 +405,7 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
         max_step: 1.0,
     };
     let distorted = nom.eval.chi2_train / n_tr > 100.0;
+    let n_ho = problem.held.len() as f64;
     let mut singles: Vec<(Effect, Fitted)> = vec![];
     // Only candidates whose screening already beats the information-criterion penalty are
     // refitted: a refit cannot make a candidate that explains nothing significant.
@@ -430,7 +431,15 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
         })
         .collect();
     let mut to_refit: Vec<usize> = (0..n_refit).collect();
-    for e in implied {
+    // The strongest candidate's look-alikes are refitted too: the screening is linearised
+    // about a nominal fit that has already bent toward the strongest effect, and physics that
+    // looks alike is exactly what that bending hides (a drag behind a fast retardation time).
+    let look_alikes = if n_refit > 0 {
+        screened[0].0.look_alikes()
+    } else {
+        &[]
+    };
+    for e in implied.into_iter().chain(look_alikes.iter().copied()) {
         if let Some(i) = screened.iter().position(|s| s.0 == e) {
             if !to_refit.contains(&i) {
                 to_refit.push(i);
@@ -470,7 +479,12 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
     for (e, f) in &singles {
         let (ok, d_tr, d_ho, pen) = judge(&nom, f);
         if ok {
-            sig_singles.push((*e, f.clone(), d_ho));
+            // Ranked by the held-out drop less a BIC-like price per parameter: look-alikes
+            // explain the same residual within a few χ² units, and then the simpler physics
+            // is the better explanation.
+            let k = (model::n_params(&problem, &f.spec) - model::n_params(&problem, &nom.spec))
+                as f64;
+            sig_singles.push((*e, f.clone(), d_ho - k * n_ho.ln()));
         }
         reports.push(EffectReport {
             id: e.id(),
@@ -508,7 +522,6 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
         sig_singles.first().map(|s| vec![s.0]).unwrap_or_default();
     // A second effect is looked for only where the best single one leaves the held-out
     // residual significantly above the floor (5 σ of a χ² over the held-out samples).
-    let n_ho = problem.held.len() as f64;
     let leaves_structure = |f: &Fitted| f.eval.chi2_held > n_ho + 5.0 * (2.0 * n_ho).sqrt();
     if opts.pairs {
         if let Some((a, fa, _)) = sig_singles

@@ -82,6 +82,26 @@ impl Effect {
         }
     }
 
+    /// Effects whose signature this one's resembles in a broadband indentation record (the
+    /// maskings the issue names, and their mirror images).
+    pub fn look_alikes(self) -> &'static [Effect] {
+        use Effect::*;
+        match self {
+            MissingRelaxation => &[HydrodynamicDrag, ChannelDelay, InstrumentResonance, PiezoCreep],
+            HydrodynamicDrag => &[MissingRelaxation, ChannelDelay, InstrumentResonance],
+            ChannelDelay => &[HydrodynamicDrag, MissingRelaxation, InstrumentResonance],
+            InstrumentResonance => &[ChannelDelay, HydrodynamicDrag, MissingRelaxation],
+            PiezoCreep => &[MissingRelaxation, ThermalDrift, PiezoHysteresis],
+            ThermalDrift => &[PiezoCreep, MissingRelaxation],
+            PiezoHysteresis => &[MissingRelaxation, DetectorNonlinearity, PiezoCreep],
+            DetectorNonlinearity => &[PiezoHysteresis, SubstrateEffect, TipGeometry],
+            SubstrateEffect => &[TipGeometry, DetectorNonlinearity],
+            TipGeometry => &[SubstrateEffect, DetectorNonlinearity],
+            Adhesion => &[],
+            MainsInterference => &[],
+        }
+    }
+
     /// Names and units of the nonlinear parameters, in θ order (values reported in these units).
     fn nonlinear_names(self, declared: &TipConfig) -> Vec<(&'static str, &'static str)> {
         match self {

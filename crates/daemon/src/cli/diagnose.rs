@@ -41,6 +41,10 @@ pub struct BenchArgs {
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
+    /// Also write each case as a recording (`NAME.csv` + `NAME.toml`, truth in `[truth]`) here,
+    /// to diagnose one by one or to feed another tool.
+    #[arg(long)]
+    pub write: Option<PathBuf>,
 }
 
 fn summary_json(s: &FitSummary) -> Value {
@@ -552,6 +556,15 @@ pub fn run_bench(args: BenchArgs) -> anyhow::Result<()> {
         cases.retain(|c| c.name.contains(f.as_str()));
     }
     anyhow::ensure!(!cases.is_empty(), "no corpus case matches");
+    if let Some(dir) = &args.write {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        for c in &cases {
+            let stem = c.name.replace('/', "-");
+            let csv = dir.join(format!("{stem}.csv"));
+            crate::cli::simulate::write_atomic(&csv, &csv.with_extension("toml"), &c.recording)?;
+        }
+        eprintln!("wrote {} recordings to {}", cases.len(), dir.display());
+    }
     let quiet = args.json;
     let outcomes = run_corpus(&cases, args.threads, |o, k, n| {
         if !quiet {
