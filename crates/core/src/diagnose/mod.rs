@@ -404,7 +404,7 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
         max_iterations: 40,
         max_step: 1.0,
     };
-    let distorted = nom.eval.chi2_train / n_tr > 100.0;
+    let distorted = nom.eval.chi2_train / n_tr > 1.5;
     let n_ho = problem.held.len() as f64;
     let mut singles: Vec<(Effect, Fitted)> = vec![];
     // Only candidates whose screening already beats the information-criterion penalty are
