@@ -2,10 +2,12 @@
 //! catalog effect near the noise floor on each seed, masked cases, pairs, clean and 1/f nulls)
 //! and on the shared real JPK recording.
 //!
-//! What is asserted is what the engine achieves today, as a regression floor — not yet the
-//! issue's acceptance numbers (≥ 90 % top-1, ≥ 30 % held-out NRMSE improvement), which are
-//! not met; see the issue notes. The null-case requirement (no significant effect on any
-//! null) is asserted in full.
+//! Asserted: the issue's ≥ 90 % top-1 accuracy and no significant effect on any null case;
+//! and, where an effect was found, that the held-out model error above the noise floor
+//! shrinks by ≥ 30 % on at least 90 % of the effect cases. The issue's "held-out NRMSE
+//! improves by ≥ 30 %" is not asserted: the NRMSE includes the floor, and an effect whose
+//! visible size is 1 σ (the near-floor cases) can improve it by at most 1 − 1/√2 ≈ 29 %;
+//! see the issue notes.
 
 use viscoprobe_core::diagnose::bench::score;
 use viscoprobe_core::diagnose::corpus::concealed_corpus;
@@ -42,6 +44,12 @@ fn concealed_corpus_scores() {
         accuracy >= TOP1_FLOOR,
         "top-1 accuracy {accuracy:.3} fell below {TOP1_FLOOR}"
     );
+    assert!(
+        s.model_error_improved_30 as f64 >= 0.9 * s.effect_cases as f64,
+        "model error shrank by ≥ 30 % on only {}/{}",
+        s.model_error_improved_30,
+        s.effect_cases
+    );
     // The effects that dominate their signature are found on every seed.
     for id in [
         "mains_interference",
@@ -58,7 +66,7 @@ fn concealed_corpus_scores() {
     }
 }
 
-const TOP1_FLOOR: f64 = 0.6;
+const TOP1_FLOOR: f64 = 0.9;
 
 /// The real gel recording: the retract pull-off is located as a significant mismatch and the
 /// diagnosis finds physics that improves the held-out fit.

@@ -16,6 +16,9 @@ pub struct CaseOutcome {
     pub verdict: Verdict,
     pub before_nrmse: f64,
     pub after_nrmse: f64,
+    /// Held-out whitened χ² per sample before and after (1 = the noise floor).
+    pub before_chi2: f64,
+    pub after_chi2: f64,
     pub seconds: f64,
 }
 
@@ -35,6 +38,8 @@ impl CaseOutcome {
             verdict: d.verdict,
             before_nrmse: d.before.held_out_nrmse,
             after_nrmse: d.after.held_out_nrmse,
+            before_chi2: d.before.held_out_chi2_per_sample,
+            after_chi2: d.after.held_out_chi2_per_sample,
             seconds,
         }
     }
@@ -48,9 +53,21 @@ impl CaseOutcome {
         self.top.as_ref().is_some_and(|t| self.truth.contains(t))
     }
 
-    /// Relative improvement of the held-out NRMSE, `1 − after/before`.
+    /// Relative improvement of the held-out NRMSE, `1 − after/before`. The NRMSE includes the
+    /// noise floor, so an effect whose visible size is 1 σ can improve it by at most
+    /// 1 − 1/√2 ≈ 29 %.
     pub fn improvement(&self) -> f64 {
         1.0 - self.after_nrmse / self.before_nrmse
+    }
+
+    /// Relative improvement of the model error alone: the held-out RMS residual in excess of
+    /// the noise floor, `1 − √(after − 1)/√(before − 1)` in χ² per sample.
+    pub fn model_error_improvement(&self) -> f64 {
+        let excess = |c: f64| (c - 1.0).max(0.0).sqrt();
+        if excess(self.before_chi2) <= 0.0 {
+            return 0.0;
+        }
+        1.0 - excess(self.after_chi2) / excess(self.before_chi2)
     }
 }
 
@@ -63,6 +80,8 @@ pub struct Score {
     pub null_false_positives: usize,
     /// Effect cases whose held-out NRMSE improved by at least 30 %.
     pub improved_30: usize,
+    /// Effect cases whose held-out model error (above the floor) shrank by at least 30 %.
+    pub model_error_improved_30: usize,
     /// Rows: truth (first true effect, or `null`); columns: top-ranked (or `none`).
     pub confusion: Vec<(String, String, usize)>,
 }
@@ -92,6 +111,10 @@ pub fn score(outcomes: &[CaseOutcome]) -> Score {
         null_cases: nulls.len(),
         null_false_positives: nulls.iter().filter(|o| !o.significant.is_empty()).count(),
         improved_30: effects.iter().filter(|o| o.improvement() >= 0.3).count(),
+        model_error_improved_30: effects
+            .iter()
+            .filter(|o| o.model_error_improvement() >= 0.3)
+            .count(),
         confusion,
     }
 }
