@@ -482,8 +482,8 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
             // Ranked by the held-out drop less a BIC-like price per parameter: look-alikes
             // explain the same residual within a few χ² units, and then the simpler physics
             // is the better explanation.
-            let k = (model::n_params(&problem, &f.spec) - model::n_params(&problem, &nom.spec))
-                as f64;
+            let k =
+                (model::n_params(&problem, &f.spec) - model::n_params(&problem, &nom.spec)) as f64;
             sig_singles.push((*e, f.clone(), d_ho - k * n_ho.ln()));
         }
         reports.push(EffectReport {

@@ -87,7 +87,12 @@ impl Effect {
     pub fn look_alikes(self) -> &'static [Effect] {
         use Effect::*;
         match self {
-            MissingRelaxation => &[HydrodynamicDrag, ChannelDelay, InstrumentResonance, PiezoCreep],
+            MissingRelaxation => &[
+                HydrodynamicDrag,
+                ChannelDelay,
+                InstrumentResonance,
+                PiezoCreep,
+            ],
             HydrodynamicDrag => &[MissingRelaxation, ChannelDelay, InstrumentResonance],
             ChannelDelay => &[HydrodynamicDrag, MissingRelaxation, InstrumentResonance],
             InstrumentResonance => &[ChannelDelay, HydrodynamicDrag, MissingRelaxation],
