@@ -1,12 +1,12 @@
 //! Fitting a model to the recording: Levenberg–Marquardt on the twin's simulation, and a
 //! cheap screening step that ranks candidates before the full refits.
 //!
-//! The solver is the textbook one (as in [`crate::estimate::lm`]) but with a finite-difference
-//! Jacobian computed only at accepted points: each Jacobian costs one twin simulation per
-//! parameter, so evaluating it at rejected trial points (as the shared solver's interface
-//! requires) would double the cost of a diagnosis.
+//! The solver is the project's Levenberg–Marquardt ([`crate::estimate::lm::solve_lazy`]) with
+//! a finite-difference Jacobian, which that entry point asks for only at accepted points: each
+//! Jacobian costs one twin simulation per parameter.
 
 use super::model::{Evaluation, ModelSpec, Problem};
+use crate::estimate::lm::{solve_lazy, LmOptions};
 use nalgebra::{DMatrix, DVector};
 
 /// A fitted model.
@@ -22,11 +22,9 @@ pub struct Fitted {
     pub iterations: usize,
 }
 
-fn fd_step(i: usize) -> f64 {
-    // θ is in log units except the contact point (in 10 nm): 1e-4 is 0.01 % or 1 pm.
-    let _ = i;
-    1e-4
-}
+/// Finite-difference step in θ: θ is in log units except the contact point (in 10 nm), so
+/// 1e-4 is 0.01 % or 1 pm.
+const FD_STEP: f64 = 1e-4;
 
 /// Jacobian of the train residuals over the parameters `which`, by forward differences.
 fn jacobian(
@@ -39,7 +37,7 @@ fn jacobian(
     let mut jac = DMatrix::<f64>::zeros(r0.len(), which.len());
     for (c, &i) in which.iter().enumerate() {
         // Forward difference; backward where the forward point is not physical (a bound).
-        let mut h = fd_step(i);
+        let mut h = FD_STEP;
         let mut tp = th.to_vec();
         tp[i] += h;
         let e = match problem.evaluate(spec, &tp) {
@@ -74,7 +72,21 @@ impl Default for FitOptions {
     }
 }
 
-/// Minimises χ²_train over the parameters `free` (others held), from `th0`.
+/// What [`fit_params`] reached.
+pub struct ParamFit {
+    pub theta: Vec<f64>,
+    /// The model at `theta` (its train residuals unprojected).
+    pub eval: Evaluation,
+    /// Gauss–Newton matrix of the (projected) objective at `theta`, over the free parameters.
+    pub jtj: DMatrix<f64>,
+    /// Jacobian of the (projected) train residuals at `theta`, over the free parameters.
+    pub jacobian: DMatrix<f64>,
+    pub iterations: usize,
+}
+
+/// Minimises χ²_train over the parameters `free` (others held), from `th0`. With
+/// `project_out` (an orthonormal basis Q), the objective is ‖(I − QQᵀ) r‖²: the residual after
+/// a linearised refit of the directions Q spans (the nominal parameters).
 pub fn fit_params(
     problem: &Problem,
     spec: &ModelSpec,
@@ -82,87 +94,61 @@ pub fn fit_params(
     free: &[usize],
     opts: FitOptions,
     project_out: Option<&DMatrix<f64>>,
-) -> Option<(Vec<f64>, Evaluation, DMatrix<f64>, usize)> {
-    // With `project_out` (an orthonormal basis Q), the objective is ‖(I − QQᵀ) r‖²: the
-    // residual after a linearised refit of the directions Q spans (the nominal parameters).
-    let project = |r: &[f64]| -> Vec<f64> {
-        match project_out {
-            None => r.to_vec(),
-            Some(q) => {
-                let rv = DVector::from_column_slice(r);
-                let c = q.transpose() * &rv;
-                (rv - q * c).iter().copied().collect()
-            }
+) -> Option<ParamFit> {
+    let project = |r: DVector<f64>| match project_out {
+        None => r,
+        Some(q) => {
+            let c = q.transpose() * &r;
+            r - q * c
         }
     };
-    let mut th = th0.to_vec();
-    let mut eval = problem.evaluate(spec, &th)?;
-    let mut r = project(&eval.train_residuals);
-    let mut cost: f64 = r.iter().map(|v| v * v).sum();
-    let mut lambda = 1e-3;
-    let mut iterations = 0;
-    let mut jac_raw = jacobian(problem, spec, &th, &eval.train_residuals, free)?;
-    let proj_jac = |j: &DMatrix<f64>| -> DMatrix<f64> {
-        match project_out {
-            None => j.clone(),
-            Some(q) => j - q * (q.transpose() * j),
+    let full = |x: &[f64]| {
+        let mut th = th0.to_vec();
+        for (&i, v) in free.iter().zip(x) {
+            th[i] = *v;
         }
+        th
     };
-    let mut jac = proj_jac(&jac_raw);
-    let n = free.len();
-    while iterations < opts.max_iterations && n > 0 {
-        iterations += 1;
-        let rv = DVector::from_column_slice(&r);
-        let g = jac.transpose() * &rv;
-        let jtj = jac.transpose() * &jac;
-        let mut accepted = false;
-        let mut converged = false;
-        while lambda < 1e12 {
-            let mut a = jtj.clone();
-            for i in 0..n {
-                a[(i, i)] += lambda * jtj[(i, i)].max(1e-12);
-            }
-            let Some(chol) = a.cholesky() else {
-                lambda *= 10.0;
-                continue;
-            };
-            let mut step = -chol.solve(&g);
-            let big = step.amax();
-            if big > opts.max_step {
-                step *= opts.max_step / big;
-            }
-            let mut trial = th.clone();
-            for (c, &i) in free.iter().enumerate() {
-                trial[i] += step[c];
-            }
-            match problem.evaluate(spec, &trial) {
-                Some(e) => {
-                    let rt = project(&e.train_residuals);
-                    let ct: f64 = rt.iter().map(|v| v * v).sum();
-                    if ct < cost {
-                        let gain = cost - ct;
-                        th = trial;
-                        eval = e;
-                        r = rt;
-                        // χ² is in units of the noise floor: a gain of 0.01 is statistically nothing.
-                        converged = gain <= 0.01 || gain <= 1e-7 * cost || step.amax() < 1e-7;
-                        cost = ct;
-                        lambda = (lambda / 4.0).max(1e-9);
-                        accepted = true;
-                        break;
-                    }
-                    lambda *= 8.0;
-                }
-                None => lambda *= 8.0,
-            }
+    // Every evaluation with a lower cost than all before is the solver's current point (it
+    // accepts exactly those), so the best one seen is the model at the solution, and the raw
+    // residuals the finite differences start from.
+    let best: std::cell::RefCell<Option<(f64, Evaluation)>> = Default::default();
+    let residuals = |x: &[f64]| {
+        let e = problem.evaluate(spec, &full(x))?;
+        let r = project(DVector::from_column_slice(&e.train_residuals));
+        let cost = r.norm_squared();
+        let mut b = best.borrow_mut();
+        if b.as_ref().is_none_or(|(c, _)| cost < *c) {
+            *b = Some((cost, e));
         }
-        if !accepted || converged {
-            break;
-        }
-        jac_raw = jacobian(problem, spec, &th, &eval.train_residuals, free)?;
-        jac = proj_jac(&jac_raw);
-    }
-    Some((th, eval, jac_raw, iterations))
+        Some(r)
+    };
+    let jacobian_at = |x: &[f64], _: &DVector<f64>| {
+        let b = best.borrow();
+        let r0 = &b.as_ref()?.1.train_residuals;
+        let j = jacobian(problem, spec, &full(x), r0, free)?;
+        Some(match project_out {
+            None => j,
+            Some(q) => &j - q * (q.transpose() * &j),
+        })
+    };
+    let lm_opts = LmOptions {
+        max_iterations: opts.max_iterations,
+        max_step: opts.max_step,
+        cost_tolerance: 1e-7,
+        cost_tolerance_abs: 0.01,
+        step_tolerance: 1e-7,
+    };
+    let x0: Vec<f64> = free.iter().map(|&i| th0[i]).collect();
+    let res = solve_lazy(&x0, residuals, jacobian_at, lm_opts)?;
+    let (_, eval) = best.into_inner()?;
+    Some(ParamFit {
+        theta: full(&res.params),
+        eval,
+        jtj: res.jtj,
+        jacobian: res.jacobian,
+        iterations: res.iterations,
+    })
 }
 
 /// Fits every nonlinear parameter of `spec` from each start; keeps the lowest χ²_train.
@@ -175,21 +161,18 @@ pub fn fit_model(
     let free: Vec<usize> = (0..spec.n_nonlinear()).collect();
     let mut best: Option<Fitted> = None;
     for s in starts {
-        let Some((theta, eval, jacobian, iterations)) =
-            fit_params(problem, spec, s, &free, opts, None)
-        else {
+        let Some(f) = fit_params(problem, spec, s, &free, opts, None) else {
             continue;
         };
         if best
             .as_ref()
-            .is_some_and(|b| b.eval.chi2_train <= eval.chi2_train)
+            .is_some_and(|b| b.eval.chi2_train <= f.eval.chi2_train)
         {
             continue;
         }
         let dof = (problem.train.len() as f64 - free.len() as f64).max(1.0);
-        let scale = (eval.chi2_train / dof).max(1.0);
-        let jtj = jacobian.transpose() * &jacobian;
-        let sd = match crate::linalg::spd_inverse(&jtj) {
+        let scale = (f.eval.chi2_train / dof).max(1.0);
+        let sd = match crate::linalg::spd_inverse(&f.jtj) {
             Some(inv) => (0..free.len())
                 .map(|i| (inv[(i, i)].max(0.0) * scale).sqrt())
                 .collect(),
@@ -197,11 +180,11 @@ pub fn fit_model(
         };
         best = Some(Fitted {
             spec: spec.clone(),
-            theta,
-            eval,
+            theta: f.theta,
+            eval: f.eval,
             sd,
-            jacobian,
-            iterations,
+            jacobian: f.jacobian,
+            iterations: f.iterations,
         });
     }
     best
@@ -230,10 +213,10 @@ pub fn screen(
             let c = q.transpose() * &rv;
             Some(((rv - q * c).norm_squared(), s.clone()))
         } else {
-            fit_params(problem, spec, s, &free, opts, Some(q)).map(|(th, e, _, _)| {
-                let rv = DVector::from_column_slice(&e.train_residuals);
+            fit_params(problem, spec, s, &free, opts, Some(q)).map(|f| {
+                let rv = DVector::from_column_slice(&f.eval.train_residuals);
                 let c = q.transpose() * &rv;
-                ((rv - q * c).norm_squared(), th)
+                ((rv - q * c).norm_squared(), f.theta)
             })
         };
         if let Some((c, th)) = r {

@@ -33,6 +33,7 @@ pub mod locate;
 pub mod model;
 pub mod noise;
 
+use crate::analysis;
 use crate::prony::PronySeries;
 use crate::recording::{Drive, Recording};
 use crate::twin::TipConfig;
@@ -190,9 +191,6 @@ pub struct Diagnosis {
     /// Whitened, σ-normalised residuals (before and after), for spectra against the floor.
     pub whitened_before: Vec<f64>,
     pub whitened_after: Vec<f64>,
-    /// Which samples were held out.
-    pub held_out: Vec<usize>,
-    pub contact_index: usize,
     /// Twin simulations run.
     pub simulations: usize,
 }
@@ -224,17 +222,15 @@ fn find_contact(y: &[f64]) -> Result<(usize, f64, f64), DiagnoseError> {
 /// A first material from the recording's (u, y) by the offline fitter, or a static Hertz
 /// estimate when that fails.
 fn first_material(
+    offline: Option<&PronySeries>,
     rec: &Recording,
     gain: f64,
     drive: &[f64],
     contact: usize,
     base: f64,
 ) -> PronySeries {
-    if let Ok(f) = crate::analysis::fit_recording(rec, crate::analysis::Terms::Fixed(NOMINAL_TERMS))
-    {
-        if f.estimate.model.is_physical() && f.estimate.model.order() == NOMINAL_TERMS {
-            return f.estimate.model.clone();
-        }
+    if let Some(m) = offline.filter(|m| m.is_physical() && m.order() == NOMINAL_TERMS) {
+        return m.clone();
     }
     let k = rec.meta.cantilever.spring_constant_n_per_m;
     let c = rec.meta.cantilever.deflection_sensitivity_nm_per_v;
@@ -269,28 +265,30 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
         return Err(DiagnoseError::TooShort(n));
     }
     let fs = rec.sample_rate_hz;
-    let (drive, drive_is_volts, gain0) = match &rec.drive {
+    let (drive, gain0) = match &rec.drive {
         Drive::Volts(v) => (
             v.clone(),
-            true,
             rec.meta
                 .piezo
                 .as_ref()
                 .ok_or(DiagnoseError::NoGain)?
                 .gain_nm_per_v,
         ),
-        Drive::Nanometres(v) => (v.clone(), false, 1.0),
+        Drive::Nanometres(v) => (v.clone(), 1.0),
     };
     let y = rec.deflection_v.clone();
     let (contact0, base, sigma_head) = find_contact(&y)?;
-    // The offline fitter's contact point is the better one where long-range forces make the
-    // force creep out of the noise (it treats the contact as a model parameter); the simple
-    // threshold above is the fallback.
-    let contact = crate::analysis::prepare(rec)
-        .map(|p| p.contact_index)
-        .ok()
-        .filter(|&c| c > 0 && c < n)
-        .unwrap_or(contact0);
+    // The offline fitter, run once: its contact point is the better one where long-range
+    // forces make the force creep out of the noise (it treats the contact as a model
+    // parameter), the simple threshold above is the fallback; its material is the nominal
+    // twin's first start.
+    let offline = analysis::fit_recording(rec, analysis::Terms::Fixed(NOMINAL_TERMS));
+    let contact = match &offline {
+        Ok(f) => Some(f.prepared.contact_index),
+        Err(_) => analysis::prepare(rec).ok().map(|p| p.contact_index),
+    }
+    .filter(|&c| c > 0 && c < n)
+    .unwrap_or(contact0);
     let free_end = contact.saturating_sub((contact / 20).max(5));
     let noise = noise::measure(&y[..free_end], fs).unwrap_or_else(|| noise::fallback(&y));
     let declared_tip = match rec.meta.tip {
@@ -307,29 +305,33 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
         }
     }
     let t_s: Vec<f64> = rec.time_s.iter().map(|t| t - rec.time_s[0]).collect();
-    let mut problem = Problem {
+    let problem = Problem {
         fs_hz: fs,
         drive: drive.clone(),
-        drive_is_volts,
         deflection_v: y.clone(),
         t_s: t_s.clone(),
         spring_constant_n_per_m: rec.meta.cantilever.spring_constant_n_per_m,
         sensitivity_nm_per_v: rec.meta.cantilever.deflection_sensitivity_nm_per_v,
         declared_tip,
         poisson_ratio: rec.meta.sample.poisson_ratio,
-        gain0,
         whitening: noise.ar.clone(),
         sigma_w_v: noise.sigma_w_v,
         train,
         held,
-        mains_hz: 50.0,
+        mains_hz: pick_mains(&y[..free_end.max(2)], fs),
         floor_from_hz: 3.0 * fs / noise.samples.max(1) as f64,
         simulations: std::cell::Cell::new(0),
     };
-    problem.mains_hz = pick_mains(&problem, &y[..free_end.max(2)], fs);
 
     // 1. Nominal twin.
-    let material0 = first_material(rec, gain0, &drive, contact, base);
+    let material0 = first_material(
+        offline.as_ref().ok().map(|f| &f.estimate.model),
+        rec,
+        gain0,
+        &drive,
+        contact,
+        base,
+    );
     let zc0 = gain0 * drive[contact];
     let nominal = ModelSpec::nominal();
     let mut starts = vec![problem.nominal_theta(gain0, zc0, &material0)];
@@ -385,7 +387,7 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
 
     // 3. Screen every catalog effect.
     let q = orthonormal_basis(&nom.jacobian);
-    let ctx = StartContext::new(&problem, &nom, &y, base, &phases);
+    let ctx = StartContext::new(&problem, &nom, &white_nom, base, &phases);
     let mut screened: Vec<(Effect, f64, Vec<f64>)> = Effect::ALL
         .iter()
         .filter_map(|&e| {
@@ -615,8 +617,6 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
         t_s,
         whitened_before: white_nom,
         whitened_after: white_final,
-        held_out: problem.held.clone(),
-        contact_index: contact,
         simulations: problem.simulations.get(),
     })
 }
@@ -741,12 +741,11 @@ fn combine(spec: &ModelSpec, a: &Fitted, b: &Fitted) -> Vec<f64> {
 }
 
 /// 50 or 60 Hz: whichever line is stronger where the lever is free (50 when neither shows).
-fn pick_mains(problem: &Problem, free: &[f64], fs: f64) -> f64 {
-    let _ = problem;
+fn pick_mains(free: &[f64], fs: f64) -> f64 {
+    let m = free.iter().sum::<f64>() / free.len().max(1) as f64;
     let power = |f: f64| {
         let w = 2.0 * std::f64::consts::PI * f / fs;
         let (mut c, mut s) = (0.0, 0.0);
-        let m = free.iter().sum::<f64>() / free.len().max(1) as f64;
         for (k, v) in free.iter().enumerate() {
             c += (v - m) * (w * k as f64).cos();
             s += (v - m) * (w * k as f64).sin();
@@ -770,7 +769,15 @@ struct StartContext {
 }
 
 impl StartContext {
-    fn new(problem: &Problem, nom: &Fitted, y: &[f64], base: f64, phases: &[Phase]) -> Self {
+    /// `white_nom`: the nominal fit's whitened residual.
+    fn new(
+        problem: &Problem,
+        nom: &Fitted,
+        white_nom: &[f64],
+        base: f64,
+        phases: &[Phase],
+    ) -> Self {
+        let y = &problem.deflection_v;
         let fs = problem.fs_hz;
         let lo = problem.drive.iter().copied().fold(f64::INFINITY, f64::min);
         let hi = problem
@@ -797,8 +804,7 @@ impl StartContext {
             })
             .map_or(0.0, |vmin| (base - vmin).max(0.0) * kc);
         // Resonance guess: the strongest excess of the nominal residual above 50 Hz.
-        let e = whitened(problem, nom);
-        let locs = locate::in_frequency(&e, &problem.drive, (0, e.len()), fs, 0.0);
+        let locs = locate::in_frequency(white_nom, &problem.drive, (0, white_nom.len()), fs, 0.0);
         let guess = locs
             .iter()
             .filter(|l| l.name.starts_with("band") && l.from > 50.0)

@@ -108,24 +108,22 @@ impl Effect {
     }
 
     /// Names and units of the nonlinear parameters, in θ order (values reported in these units).
-    fn nonlinear_names(self, declared: &TipConfig) -> Vec<(&'static str, &'static str)> {
+    fn nonlinear_names(self) -> &'static [(&'static str, &'static str)] {
         match self {
-            Effect::PiezoHysteresis => vec![
+            Effect::PiezoHysteresis => &[
                 ("alpha", "1"),
                 ("beta_per_v", "1/V"),
                 ("gamma_per_v", "1/V"),
             ],
-            Effect::PiezoCreep => vec![("fraction", "1"), ("tau_s", "s")],
-            Effect::MissingRelaxation => vec![("j_per_pa", "1/Pa"), ("tau_s", "s")],
-            Effect::InstrumentResonance => vec![("freq_hz", "Hz"), ("q", "1")],
-            Effect::Adhesion => vec![("pull_off_force_nn", "nN")],
-            Effect::ChannelDelay => vec![("delay_s", "s")],
-            Effect::SubstrateEffect => vec![("film_thickness_nm", "nm")],
-            Effect::TipGeometry => {
-                let _ = declared;
-                vec![]
-            }
-            _ => vec![],
+            Effect::PiezoCreep => &[("fraction", "1"), ("tau_s", "s")],
+            Effect::MissingRelaxation => &[("j_per_pa", "1/Pa"), ("tau_s", "s")],
+            Effect::InstrumentResonance => &[("freq_hz", "Hz"), ("q", "1")],
+            Effect::Adhesion => &[("pull_off_force_nn", "nN")],
+            Effect::ChannelDelay => &[("delay_s", "s")],
+            Effect::SubstrateEffect => &[("film_thickness_nm", "nm")],
+            // The tip swap has no parameter of its own (the compliances absorb the scale); the
+            // linear effects are solved in closed form.
+            _ => &[],
         }
     }
 
@@ -149,8 +147,7 @@ impl Effect {
     }
 
     pub fn n_nonlinear(self) -> usize {
-        self.nonlinear_names(&TipConfig::Sphere { radius_nm: 1.0 })
-            .len()
+        self.nonlinear_names().len()
     }
 }
 
@@ -221,7 +218,6 @@ pub struct Problem {
     pub fs_hz: f64,
     /// Drive, in the recording's unit (V, or nm with a gain of 1 nm/nm).
     pub drive: Vec<f64>,
-    pub drive_is_volts: bool,
     /// Recorded deflection, V.
     pub deflection_v: Vec<f64>,
     /// Time from the first sample, s.
@@ -230,8 +226,6 @@ pub struct Problem {
     pub sensitivity_nm_per_v: f64,
     pub declared_tip: TipConfig,
     pub poisson_ratio: f64,
-    /// Declared actuator gain, nm per drive unit.
-    pub gain0: f64,
     /// AR whitening filter `[1, a1, …, ap]` and the whitened noise σ, V.
     pub whitening: Vec<f64>,
     pub sigma_w_v: f64,
@@ -583,7 +577,7 @@ impl Problem {
     ) -> Vec<(String, &'static str, f64, [f64; 2])> {
         let mut out = Vec::new();
         if let Some(o) = spec.offset_of(effect) {
-            let names = effect.nonlinear_names(&self.declared_tip);
+            let names = effect.nonlinear_names();
             for (i, (name, unit)) in names.iter().enumerate() {
                 let (x, s) = (th[o + i], sd.get(o + i).copied().unwrap_or(f64::NAN));
                 let (v, ci) = if effect == Effect::PiezoHysteresis && i == 2 {
