@@ -5,5 +5,6 @@ pub mod cli;
 pub mod config;
 pub mod measure;
 pub mod output;
+pub mod plot;
 pub mod service;
 pub mod simrun;

@@ -3,6 +3,7 @@
 
 use crate::cli::fit::load_recording;
 use crate::output::print_json;
+use crate::plot::{canvas, draw_legend, err, legend_line, padded_range};
 use anyhow::Context;
 use clap::Args;
 use plotters::prelude::*;
@@ -258,9 +259,7 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
     }
 }
 
-fn err<E: std::fmt::Debug>(e: E) -> anyhow::Error {
-    anyhow::anyhow!("{e:?}")
-}
+const PLOT_SIZE: (u32, u32) = (1000, 560);
 
 /// Residuals before/after over time, residual spectra against the floor, data vs models.
 fn write_plots(dir: &Path, d: &Diagnosis) -> anyhow::Result<Vec<PathBuf>> {
@@ -301,8 +300,7 @@ fn residual_time(path: &Path, d: &Diagnosis) -> anyhow::Result<()> {
         .fold(0.0f64, |m, v| m.max(v.abs()))
         .max(1e-6);
     let t_end = *d.t_s.last().unwrap_or(&1.0);
-    let root = SVGBackend::new(path, (1000, 560)).into_drawing_area();
-    root.fill(&WHITE).map_err(err)?;
+    let root = canvas(path, PLOT_SIZE)?;
     let mut chart = ChartBuilder::on(&root)
         .caption(
             "Deflection residual, recorded − model (phases shaded)",
@@ -337,18 +335,13 @@ fn residual_time(path: &Path, d: &Diagnosis) -> anyhow::Result<()> {
         .draw_series(LineSeries::new(decimate(&rb, &d.t_s, 5000), RED.mix(0.7)))
         .map_err(err)?
         .label(format!("before: {}", d.before.model))
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED));
+        .legend(legend_line(RED));
     chart
         .draw_series(LineSeries::new(decimate(&ra, &d.t_s, 5000), BLUE.mix(0.7)))
         .map_err(err)?
         .label(format!("after: {}", d.after.model))
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE));
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .draw()
-        .map_err(err)?;
+        .legend(legend_line(BLUE));
+    draw_legend(&mut chart)?;
     root.present().map_err(err)?;
     Ok(())
 }
@@ -387,8 +380,7 @@ fn residual_spectrum(path: &Path, d: &Diagnosis) -> anyhow::Result<()> {
     let a = whitened_spectrum(&d.whitened_after, d.fs_hz);
     let hi = b.iter().chain(&a).map(|p| p.1).fold(10.0f64, f64::max) * 2.0;
     let f_lo = b.first().map_or(0.1, |p| p.0);
-    let root = SVGBackend::new(path, (1000, 560)).into_drawing_area();
-    root.fill(&WHITE).map_err(err)?;
+    let root = canvas(path, PLOT_SIZE)?;
     let mut chart = ChartBuilder::on(&root)
         .caption(
             "Residual spectrum relative to the measured noise floor (whitened; 1 = floor)",
@@ -412,44 +404,32 @@ fn residual_spectrum(path: &Path, d: &Diagnosis) -> anyhow::Result<()> {
         ))
         .map_err(err)?
         .label("noise floor")
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK));
+        .legend(legend_line(BLACK));
     chart
         .draw_series(LineSeries::new(b, RED))
         .map_err(err)?
         .label(format!("before: {}", d.before.model))
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED));
+        .legend(legend_line(RED));
     chart
         .draw_series(LineSeries::new(a, BLUE))
         .map_err(err)?
         .label(format!("after: {}", d.after.model))
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE));
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .draw()
-        .map_err(err)?;
+        .legend(legend_line(BLUE));
+    draw_legend(&mut chart)?;
     root.present().map_err(err)?;
     Ok(())
 }
 
 fn fit_plot(path: &Path, d: &Diagnosis) -> anyhow::Result<()> {
-    let (lo, hi) = d
-        .recorded_v
-        .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
-            (a.min(*v), b.max(*v))
-        });
-    let pad = 0.05 * (hi - lo).max(1e-9);
+    let (lo, hi) = padded_range(d.recorded_v.iter().copied());
     let t_end = *d.t_s.last().unwrap_or(&1.0);
-    let root = SVGBackend::new(path, (1000, 560)).into_drawing_area();
-    root.fill(&WHITE).map_err(err)?;
+    let root = canvas(path, PLOT_SIZE)?;
     let mut chart = ChartBuilder::on(&root)
         .caption("Recorded deflection and the two models", ("sans-serif", 18))
         .margin(15)
         .x_label_area_size(40)
         .y_label_area_size(60)
-        .build_cartesian_2d(0.0..t_end, (lo - pad)..(hi + pad))
+        .build_cartesian_2d(0.0..t_end, lo..hi)
         .map_err(err)?;
     chart
         .configure_mesh()
@@ -474,14 +454,9 @@ fn fit_plot(path: &Path, d: &Diagnosis) -> anyhow::Result<()> {
             .draw_series(LineSeries::new(decimate(data, &d.t_s, 5000), color))
             .map_err(err)?
             .label(label)
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color));
+            .legend(legend_line(color));
     }
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .draw()
-        .map_err(err)?;
+    draw_legend(&mut chart)?;
     root.present().map_err(err)?;
     Ok(())
 }

@@ -1,13 +1,14 @@
 //! `viscoprobe fit REC` and `viscoprobe import FILE.jpk-force`: recordings from any instrument.
 
+use crate::measure::report::moduli_table;
 use crate::output::print_json;
+use crate::plot::{canvas, draw_legend, err, legend_line, padded_range};
 use anyhow::Context;
 use clap::Args;
 use serde_json::{json, Map, Value};
 use std::path::{Path, PathBuf};
 use viscoprobe_core::analysis::{fit_recording, RecordingFit, Terms};
 use viscoprobe_core::jpk::JpkForce;
-use viscoprobe_core::prony::PronySeries;
 use viscoprobe_core::recording::Recording;
 
 #[derive(Debug, Args)]
@@ -253,15 +254,10 @@ pub fn run_fit(args: FitArgs) -> anyhow::Result<()> {
     for w in fit.notes.iter().chain(&est.diagnostics.warnings) {
         println!("note: {w}");
     }
-    let _ = PronySeries::param_names(n);
     for p in &plots {
         println!("wrote {}", p.display());
     }
     Ok(())
-}
-
-fn plot_err<E: std::fmt::Debug>(e: E) -> anyhow::Error {
-    anyhow::anyhow!("{e:?}")
 }
 
 /// Writes `fit.svg`, `residuals.svg` and `moduli.svg` into `dir`; returns their paths.
@@ -283,24 +279,6 @@ const PLOT_H: u32 = 560;
 /// `y = h^{3/2}` from m^{3/2} to µm^{3/2}.
 const Y_UM32: f64 = 1e9;
 
-/// (min, max) of finite values, padded by 5 % (a flat series gets a unit-sized range).
-fn padded_range(values: impl Iterator<Item = f64>) -> (f64, f64) {
-    let (lo, hi) = values
-        .filter(|v| v.is_finite())
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
-            (a.min(v), b.max(v))
-        });
-    if !lo.is_finite() {
-        return (-1.0, 1.0);
-    }
-    let pad = if hi > lo {
-        0.05 * (hi - lo)
-    } else {
-        lo.abs().max(1e-12)
-    };
-    (lo - pad, hi + pad)
-}
-
 fn time_range(p: &viscoprobe_core::analysis::Prepared) -> (f64, f64) {
     let t0 = p.time_s.first().copied().unwrap_or(0.0);
     let t1 = p.time_s.last().copied().unwrap_or(1.0);
@@ -318,8 +296,7 @@ fn plot_fit(path: &Path, fit: &RecordingFit) -> anyhow::Result<()> {
     let p = &fit.prepared;
     let (t0, t1) = time_range(p);
     let (lo, hi) = padded_range(fit.yhat.iter().chain(&p.y).map(|v| v * Y_UM32));
-    let root = SVGBackend::new(path, (PLOT_W, PLOT_H)).into_drawing_area();
-    root.fill(&WHITE).map_err(plot_err)?;
+    let root = canvas(path, (PLOT_W, PLOT_H))?;
     let mut chart = ChartBuilder::on(&root)
         .caption(
             format!(
@@ -333,13 +310,13 @@ fn plot_fit(path: &Path, fit: &RecordingFit) -> anyhow::Result<()> {
         .x_label_area_size(40)
         .y_label_area_size(70)
         .build_cartesian_2d(t0..t1, lo..hi)
-        .map_err(plot_err)?;
+        .map_err(err)?;
     chart
         .configure_mesh()
         .x_desc("time, s")
         .y_desc("y = h^3/2, µm^3/2")
         .draw()
-        .map_err(plot_err)?;
+        .map_err(err)?;
     let fitted = fit.fitted.clone();
     if fitted.start > 0 || fitted.end < p.y.len() {
         let (fa, fb) = (p.time_s[fitted.start], p.time_s[fitted.end - 1]);
@@ -348,7 +325,7 @@ fn plot_fit(path: &Path, fit: &RecordingFit) -> anyhow::Result<()> {
                 [(fa, lo), (fb, hi)],
                 BLACK.mix(0.06).filled(),
             )))
-            .map_err(plot_err)?
+            .map_err(err)?
             .label("fitted samples")
             .legend(|(x, y)| {
                 Rectangle::new([(x, y - 5), (x + 18, y + 5)], BLACK.mix(0.15).filled())
@@ -359,9 +336,9 @@ fn plot_fit(path: &Path, fit: &RecordingFit) -> anyhow::Result<()> {
             p.time_s.iter().zip(&p.y).map(|(t, y)| (*t, y * Y_UM32)),
             BLUE.mix(0.7),
         ))
-        .map_err(plot_err)?
+        .map_err(err)?
         .label("data")
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLUE));
+        .legend(legend_line(BLUE));
     chart
         .draw_series(LineSeries::new(
             p.time_s
@@ -370,16 +347,11 @@ fn plot_fit(path: &Path, fit: &RecordingFit) -> anyhow::Result<()> {
                 .map(|(t, y)| (*t, y * Y_UM32)),
             RED.stroke_width(2),
         ))
-        .map_err(plot_err)?
+        .map_err(err)?
         .label("model")
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], RED.stroke_width(2)));
-    chart
-        .configure_series_labels()
-        .border_style(BLACK)
-        .background_style(WHITE.mix(0.8))
-        .draw()
-        .map_err(plot_err)?;
-    root.present().map_err(plot_err)?;
+        .legend(legend_line(RED.stroke_width(2)));
+    draw_legend(&mut chart)?;
+    root.present().map_err(err)?;
     Ok(())
 }
 
@@ -394,8 +366,7 @@ fn plot_residuals(path: &Path, fit: &RecordingFit) -> anyhow::Result<()> {
             .map(|(y, m)| (y - m) * Y_UM32)
             .collect();
     let (lo, hi) = padded_range(r.iter().copied().chain([0.0]));
-    let root = SVGBackend::new(path, (PLOT_W, PLOT_H)).into_drawing_area();
-    root.fill(&WHITE).map_err(plot_err)?;
+    let root = canvas(path, (PLOT_W, PLOT_H))?;
     let mut chart = ChartBuilder::on(&root)
         .caption(
             format!(
@@ -414,133 +385,44 @@ fn plot_residuals(path: &Path, fit: &RecordingFit) -> anyhow::Result<()> {
         .x_label_area_size(40)
         .y_label_area_size(70)
         .build_cartesian_2d(t0..t1, lo..hi)
-        .map_err(plot_err)?;
+        .map_err(err)?;
     chart
         .configure_mesh()
         .x_desc("time, s")
         .y_desc("residual, µm^3/2")
         .draw()
-        .map_err(plot_err)?;
+        .map_err(err)?;
     chart
         .draw_series(LineSeries::new(vec![(t0, 0.0), (t1, 0.0)], BLACK))
-        .map_err(plot_err)?;
+        .map_err(err)?;
     let all: Vec<(f64, f64)> = p.time_s.iter().copied().zip(r.iter().copied()).collect();
     if fit.fitted.len() < all.len() {
         chart
             .draw_series(LineSeries::new(all.clone(), BLUE.mix(0.35)))
-            .map_err(plot_err)?
+            .map_err(err)?
             .label("outside the fitted samples")
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLUE.mix(0.35)));
+            .legend(legend_line(BLUE.mix(0.35)));
     }
     chart
         .draw_series(LineSeries::new(
             all[fit.fitted.clone()].iter().copied(),
             BLUE,
         ))
-        .map_err(plot_err)?
+        .map_err(err)?
         .label("fitted samples")
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLUE));
-    chart
-        .configure_series_labels()
-        .border_style(BLACK)
-        .background_style(WHITE.mix(0.8))
-        .draw()
-        .map_err(plot_err)?;
-    root.present().map_err(plot_err)?;
+        .legend(legend_line(BLUE));
+    draw_legend(&mut chart)?;
+    root.present().map_err(err)?;
     Ok(())
 }
 
-/// E′ and E″ (kPa, log-log) and tan δ over the band the fit reports.
+/// E′ and E″ with their 95 % bands, and tan δ, over the band the fit reports.
 fn plot_moduli(path: &Path, fit: &RecordingFit) -> anyhow::Result<()> {
-    use plotters::prelude::*;
-    let model = &fit.estimate.model;
-    let [f_lo, mut f_hi] = fit.band_hz;
-    if f_hi <= f_lo {
-        f_hi = f_lo * 10.0;
-    }
-    let rows: Vec<[f64; 4]> = (0..=80)
-        .map(|i| {
-            let f = f_lo * (f_hi / f_lo).powf(i as f64 / 80.0);
-            let w = 2.0 * std::f64::consts::PI * f;
-            [
-                f,
-                model.storage_modulus(w) / 1e3,
-                model.loss_modulus(w) / 1e3,
-                model.loss_tangent(w),
-            ]
-        })
-        .collect();
-    let positive = |v: f64| v.is_finite() && v > 0.0;
-    let ys = rows
-        .iter()
-        .flat_map(|r| [r[1], r[2]])
-        .filter(|v| positive(*v));
-    let (mut ymin, mut ymax) = ys.fold((f64::INFINITY, 0.0f64), |(a, b), v| (a.min(v), b.max(v)));
-    if !positive(ymin) || !positive(ymax) {
-        (ymin, ymax) = (1e-3, 1.0);
-    }
-    let root = SVGBackend::new(path, (PLOT_W, PLOT_H)).into_drawing_area();
-    root.fill(&WHITE).map_err(plot_err)?;
-    let (left, right) = root.split_horizontally(PLOT_W * 3 / 5);
-    let mut c = ChartBuilder::on(&left)
-        .caption(
-            format!("Storage E′ and loss E″ modulus, {f_lo:.3}–{f_hi:.1} Hz"),
-            ("sans-serif", 16),
-        )
-        .margin(10)
-        .x_label_area_size(40)
-        .y_label_area_size(70)
-        .build_cartesian_2d(
-            (f_lo..f_hi).log_scale(),
-            (ymin / 1.5..ymax * 1.5).log_scale(),
-        )
-        .map_err(plot_err)?;
-    c.configure_mesh()
-        .x_desc("frequency, Hz")
-        .y_desc("modulus, kPa")
-        .draw()
-        .map_err(plot_err)?;
-    for (col, color, label) in [(1usize, BLUE, "E′"), (2, RED, "E″")] {
-        c.draw_series(LineSeries::new(
-            rows.iter()
-                .filter(|q| positive(q[col]))
-                .map(|q| (q[0], q[col])),
-            color.stroke_width(2),
-        ))
-        .map_err(plot_err)?
-        .label(label)
-        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2)));
-    }
-    c.configure_series_labels()
-        .border_style(BLACK)
-        .background_style(WHITE.mix(0.8))
-        .draw()
-        .map_err(plot_err)?;
-    let tmax = rows
-        .iter()
-        .map(|q| q[3])
-        .filter(|v| v.is_finite())
-        .fold(0.0, f64::max)
-        * 1.1;
-    let mut t = ChartBuilder::on(&right)
-        .caption("loss tangent tan δ", ("sans-serif", 16))
-        .margin(10)
-        .x_label_area_size(40)
-        .y_label_area_size(50)
-        .build_cartesian_2d((f_lo..f_hi).log_scale(), 0.0..tmax.max(1e-3))
-        .map_err(plot_err)?;
-    t.configure_mesh()
-        .x_desc("frequency, Hz")
-        .y_desc("tan δ")
-        .draw()
-        .map_err(plot_err)?;
-    t.draw_series(LineSeries::new(
-        rows.iter()
-            .filter(|q| q[3].is_finite())
-            .map(|q| (q[0], q[3])),
-        GREEN.stroke_width(2),
-    ))
-    .map_err(plot_err)?;
-    root.present().map_err(plot_err)?;
-    Ok(())
+    let [f_lo, f_hi] = fit.band_hz;
+    let f_hi = if f_hi > f_lo { f_hi } else { f_lo * 10.0 };
+    crate::plot::moduli(
+        path,
+        &moduli_table(&fit.estimate, (f_lo, f_hi)),
+        &format!("Storage E′ and loss E″ modulus, {f_lo:.3}–{f_hi:.1} Hz (95 % bands)"),
+    )
 }

@@ -1,6 +1,7 @@
 //! SVG plots of a run (plotters, SVG backend: no font or bitmap libraries needed).
 
-use super::report::{moduli_table, RunReport};
+use super::report::{moduli_table, RunReport, REPORT_BAND_HZ};
+use crate::plot::{canvas, draw_legend, err, legend_line};
 use anyhow::Context;
 use plotters::prelude::*;
 use std::path::Path;
@@ -8,10 +9,6 @@ use viscoprobe_core::prony::PronySeries;
 
 const W: u32 = 900;
 const H: u32 = 520;
-
-fn err<E: std::fmt::Debug>(e: E) -> anyhow::Error {
-    anyhow::anyhow!("{e:?}")
-}
 
 /// Writes every plot the report has data for.
 pub fn write_all(dir: &Path, report: &RunReport) -> anyhow::Result<()> {
@@ -43,8 +40,7 @@ fn convergence(path: &Path, r: &RunReport) -> anyhow::Result<()> {
             hi = hi.max(rel(it.ci95[i][1], i)).min(100.0);
         }
     }
-    let root = SVGBackend::new(path, (W, H)).into_drawing_area();
-    root.fill(&WHITE).map_err(err)?;
+    let root = canvas(path, (W, H))?;
     let what = if r.truth.is_some() {
         "truth"
     } else {
@@ -100,100 +96,21 @@ fn convergence(path: &Path, r: &RunReport) -> anyhow::Result<()> {
             }))
             .map_err(err)?;
     }
-    chart
-        .configure_series_labels()
-        .border_style(BLACK)
-        .background_style(WHITE.mix(0.8))
-        .draw()
-        .map_err(err)?;
+    draw_legend(&mut chart)?;
     root.present().map_err(err)?;
     Ok(())
 }
 
-/// E′ and E″ (MPa, log-log) with 95 % bands, and tan δ.
+/// E′ and E″ with 95 % bands, and tan δ.
 fn moduli(path: &Path, r: &RunReport) -> anyhow::Result<()> {
     let Some(est) = r.last().and_then(|l| l.estimate.as_ref()) else {
         return Ok(());
     };
-    let rows = moduli_table(est);
-    let root = SVGBackend::new(path, (W, H)).into_drawing_area();
-    root.fill(&WHITE).map_err(err)?;
-    let (left, right) = root.split_horizontally(W * 3 / 5);
-    let ymin = rows
-        .iter()
-        .map(|r| (r[3] - r[4]).max(r[3] * 0.1))
-        .fold(f64::INFINITY, f64::min)
-        / 1e6;
-    let ymax = rows.iter().map(|r| r[1] + r[2]).fold(0.0, f64::max) / 1e6;
-    let mut c = ChartBuilder::on(&left)
-        .caption(
-            "Storage E′ and loss E″ modulus (95 % bands)",
-            ("sans-serif", 16),
-        )
-        .margin(10)
-        .x_label_area_size(40)
-        .y_label_area_size(60)
-        .build_cartesian_2d(
-            (0.1f64..1e4f64).log_scale(),
-            (ymin * 0.8..ymax * 1.2).log_scale(),
-        )
-        .map_err(err)?;
-    c.configure_mesh()
-        .x_desc("frequency, Hz")
-        .y_desc("modulus, MPa")
-        .draw()
-        .map_err(err)?;
-    for (col, mid, half, label) in [(1usize, BLUE, 2usize, "E′"), (3, RED, 4, "E″")] {
-        let band: Vec<(f64, f64)> = rows
-            .iter()
-            .map(|q| (q[0], (q[col] + q[half]) / 1e6))
-            .chain(
-                rows.iter()
-                    .rev()
-                    .map(|q| (q[0], ((q[col] - q[half]).max(q[col] * 0.05)) / 1e6)),
-            )
-            .collect();
-        c.draw_series(std::iter::once(Polygon::new(band, mid.mix(0.2))))
-            .map_err(err)?;
-        c.draw_series(LineSeries::new(
-            rows.iter().map(|q| (q[0], q[col] / 1e6)),
-            mid.stroke_width(2),
-        ))
-        .map_err(err)?
-        .label(label)
-        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], mid.stroke_width(2)));
-    }
-    c.configure_series_labels()
-        .border_style(BLACK)
-        .background_style(WHITE.mix(0.8))
-        .draw()
-        .map_err(err)?;
-    let tmax = rows.iter().map(|q| q[5] + q[6]).fold(0.0, f64::max) * 1.1;
-    let mut t = ChartBuilder::on(&right)
-        .caption("tan δ", ("sans-serif", 16))
-        .margin(10)
-        .x_label_area_size(40)
-        .y_label_area_size(50)
-        .build_cartesian_2d((0.1f64..1e4f64).log_scale(), 0.0..tmax.max(1e-3))
-        .map_err(err)?;
-    t.configure_mesh()
-        .x_desc("frequency, Hz")
-        .draw()
-        .map_err(err)?;
-    let band: Vec<(f64, f64)> = rows
-        .iter()
-        .map(|q| (q[0], q[5] + q[6]))
-        .chain(rows.iter().rev().map(|q| (q[0], (q[5] - q[6]).max(0.0))))
-        .collect();
-    t.draw_series(std::iter::once(Polygon::new(band, GREEN.mix(0.2))))
-        .map_err(err)?;
-    t.draw_series(LineSeries::new(
-        rows.iter().map(|q| (q[0], q[5])),
-        GREEN.stroke_width(2),
-    ))
-    .map_err(err)?;
-    root.present().map_err(err)?;
-    Ok(())
+    crate::plot::moduli(
+        path,
+        &moduli_table(est, REPORT_BAND_HZ),
+        "Storage E′ and loss E″ modulus (95 % bands)",
+    )
 }
 
 /// Desired versus achieved force over one period of the final iteration.
@@ -214,8 +131,7 @@ fn tracking(path: &Path, r: &RunReport) -> anyhow::Result<()> {
         .chain(achieved)
         .copied()
         .fold(f64::NEG_INFINITY, f64::max);
-    let root = SVGBackend::new(path, (W, H)).into_drawing_area();
-    root.fill(&WHITE).map_err(err)?;
+    let root = canvas(path, (W, H))?;
     let t_end = idx.last().copied().unwrap_or(1.0) / fs;
     let mut c = ChartBuilder::on(&root)
         .caption(
@@ -241,19 +157,15 @@ fn tracking(path: &Path, r: &RunReport) -> anyhow::Result<()> {
     ))
     .map_err(err)?
     .label("desired")
-    .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK.stroke_width(2)));
+    .legend(legend_line(BLACK.stroke_width(2)));
     c.draw_series(LineSeries::new(
         idx.iter().zip(achieved).map(|(i, v)| (i / fs, *v)),
         RED.stroke_width(1),
     ))
     .map_err(err)?
     .label("achieved (mean of the periods)")
-    .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], RED.stroke_width(1)));
-    c.configure_series_labels()
-        .border_style(BLACK)
-        .background_style(WHITE.mix(0.8))
-        .draw()
-        .map_err(err)?;
+    .legend(legend_line(RED.stroke_width(1)));
+    draw_legend(&mut c)?;
     root.present().map_err(err)?;
     Ok(())
 }
@@ -265,8 +177,7 @@ fn design(path: &Path, r: &RunReport) -> anyhow::Result<()> {
         .iter()
         .flat_map(|it| it.lines.iter().map(|l| l.freq_hz))
         .fold(1.0, f64::max);
-    let root = SVGBackend::new(path, (W, H)).into_drawing_area();
-    root.fill(&WHITE).map_err(err)?;
+    let root = canvas(path, (W, H))?;
     let mut c = ChartBuilder::on(&root)
         .caption(
             "Excitation design per iteration: power fraction per line",

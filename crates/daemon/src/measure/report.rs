@@ -312,12 +312,17 @@ impl RunReport {
     }
 }
 
-/// E′, E″ and tan δ on a log grid with 95 % bands (delta method on the estimate's covariance).
-pub fn moduli_table(est: &Estimate) -> Vec<[f64; 7]> {
+/// The band a run's report tabulates its moduli over, Hz.
+pub const REPORT_BAND_HZ: (f64, f64) = (0.1, 1e4);
+
+/// E′, E″ and tan δ on a 41-point log grid over `band_hz` with 95 % bands (delta method on the
+/// estimate's covariance): rows `[f_Hz, E′, ±E′, E″, ±E″, tan δ, ±tan δ]`, Pa.
+pub fn moduli_table(est: &Estimate, band_hz: (f64, f64)) -> Vec<[f64; 7]> {
     let v = est.values();
     let cov = &est.covariance;
+    let (lo, hi) = band_hz;
     let grid: Vec<f64> = (0..=40)
-        .map(|i| 10f64.powf(-1.0 + 5.0 * i as f64 / 40.0))
+        .map(|i| lo * (hi / lo).powf(i as f64 / 40.0))
         .collect();
     grid.iter()
         .map(|&f| {
@@ -364,7 +369,7 @@ pub fn moduli_table(est: &Estimate) -> Vec<[f64; 7]> {
 }
 
 fn moduli_json(est: &Estimate) -> Value {
-    let rows = moduli_table(est);
+    let rows = moduli_table(est, REPORT_BAND_HZ);
     json!({
         "instantaneous_modulus_pa": est.model.instantaneous_modulus(),
         "relaxed_modulus_pa": est.model.relaxed_modulus(),
