@@ -85,6 +85,17 @@ pub fn tracking_error(desired: &[f64], measured: &[f64]) -> TrackingError {
     }
 }
 
+/// Signed frequency of bin `k` of an `n`-point DFT at `fs_hz`: bins above n/2 are the
+/// negative frequencies.
+pub fn bin_frequency_hz(k: usize, n: usize, fs_hz: f64) -> f64 {
+    let k = if k <= n / 2 {
+        k as f64
+    } else {
+        k as f64 - n as f64
+    };
+    k * fs_hz / n as f64
+}
+
 /// DFT of one period (no scaling).
 pub fn spectrum(x: &[f64]) -> Vec<Complex64> {
     let mut buf: Vec<Complex64> = x.iter().map(|v| Complex64::new(*v, 0.0)).collect();
@@ -238,12 +249,7 @@ mod tests {
         let plant = |u: &[f64]| -> Vec<f64> {
             let mut s = spectrum(u);
             for (k, z) in s.iter_mut().enumerate() {
-                let f = if k <= n / 2 {
-                    k as f64
-                } else {
-                    k as f64 - n as f64
-                } * fs
-                    / n as f64;
+                let f = bin_frequency_hz(k, n, fs);
                 let w = f / 900.0;
                 *z *= 0.8 / Complex64::new(1.0 - w * w, w / 10.0);
             }

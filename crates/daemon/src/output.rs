@@ -13,9 +13,15 @@ pub fn print_json<T: serde::Serialize>(value: &T) -> anyhow::Result<()> {
 /// Human units for a Prony parameter given its canonical name (`J0`, `J2`, `tau1`, …):
 /// compliances in µPa⁻¹, times in ms — the units of the paper's tables.
 pub fn human_param(name: &str, si: f64) -> (f64, &'static str) {
+    let (scale, unit) = param_unit(name);
+    (si * scale, unit)
+}
+
+/// The factor from SI to [`human_param`]'s unit, and the unit, for a parameter name.
+pub fn param_unit(name: &str) -> (f64, &'static str) {
     if name.starts_with("tau") {
-        (si * 1e3, "ms")
+        (1e3, "ms")
     } else {
-        (si * 1e6, "µPa⁻¹")
+        (1e6, "µPa⁻¹")
     }
 }

@@ -32,13 +32,7 @@ pub fn drive_for_force(cfg: &TwinConfig, force_n: &[f64], fs_hz: f64) -> Vec<f64
         .collect();
     planner.plan_fft_forward(n).process(&mut spec);
     for (i, x) in spec.iter_mut().enumerate() {
-        // Signed frequency of bin i.
-        let f = if i <= n / 2 {
-            i as f64
-        } else {
-            i as f64 - n as f64
-        } * fs_hz
-            / n as f64;
+        let f = crate::miic::bin_frequency_hz(i, n, fs_hz);
         let jstar = if f >= 0.0 {
             m.complex_compliance(2.0 * std::f64::consts::PI * f)
         } else {

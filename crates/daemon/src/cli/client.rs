@@ -247,12 +247,8 @@ pub fn status_line(st: &Value) -> String {
             let parts: Vec<String> = p
                 .iter()
                 .map(|(n, v)| {
-                    let v = v.as_f64().unwrap_or(f64::NAN);
-                    if n.starts_with("tau") {
-                        format!("{n} {:.4} ms", v * 1e3)
-                    } else {
-                        format!("{n} {:.4} µPa⁻¹", v * 1e6)
-                    }
+                    let (x, unit) = crate::output::human_param(n, v.as_f64().unwrap_or(f64::NAN));
+                    format!("{n} {x:.4} {unit}")
                 })
                 .collect();
             s.push_str(&format!("; estimate {}", parts.join(", ")));
@@ -286,11 +282,7 @@ fn result_summary(id: &str, r: &Value) -> String {
     if let Some(p) = r["params"].as_object() {
         for (name, v) in p {
             let v = v.as_f64().unwrap_or(f64::NAN);
-            let (scale, unit) = if name.starts_with("tau") {
-                (1e3, "ms")
-            } else {
-                (1e6, "µPa⁻¹")
-            };
+            let (scale, unit) = crate::output::param_unit(name);
             let ci = &r["ci95"][name];
             s.push_str(&format!(
                 "\n  {name:<5} {:>10.4} {unit:<6} [{:>9.4}, {:>9.4}]",

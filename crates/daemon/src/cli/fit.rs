@@ -216,16 +216,8 @@ pub fn run_fit(args: FitArgs) -> anyhow::Result<()> {
     }
     println!("Prony creep compliance ({} terms), 95 % intervals:", n);
     for (i, name) in names.iter().enumerate() {
-        let (x, lo, hi, unit) = if name.starts_with("tau") {
-            (v[i] * 1e3, est.ci95[i][0] * 1e3, est.ci95[i][1] * 1e3, "ms")
-        } else {
-            (
-                v[i] * 1e6,
-                est.ci95[i][0] * 1e6,
-                est.ci95[i][1] * 1e6,
-                "µPa⁻¹",
-            )
-        };
+        let (scale, unit) = crate::output::param_unit(name);
+        let (x, lo, hi) = (v[i] * scale, est.ci95[i][0] * scale, est.ci95[i][1] * scale);
         println!("  {name:<5} {x:>12.5} {unit:<6} [{lo:.5}, {hi:.5}]");
     }
     println!(

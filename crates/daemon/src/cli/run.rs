@@ -74,11 +74,8 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
                 .iter()
                 .zip(params)
                 .map(|(n, v)| {
-                    if n.starts_with("tau") {
-                        format!("{n} {:.4} ms", v * 1e3)
-                    } else {
-                        format!("{n} {:.4} µPa⁻¹", v * 1e6)
-                    }
+                    let (x, unit) = crate::output::human_param(n, *v);
+                    format!("{n} {x:.4} {unit}")
                 })
                 .collect();
             let ch = rel_change.map_or("—".to_string(), |r| format!("{:.3} %", 100.0 * r));
@@ -123,11 +120,7 @@ fn summary(j: &serde_json::Value) -> String {
         );
         for (name, v) in p {
             let v = v.as_f64().unwrap_or(f64::NAN);
-            let (scale, unit) = if name.starts_with("tau") {
-                (1e3, "ms")
-            } else {
-                (1e6, "µPa⁻¹")
-            };
+            let (scale, unit) = crate::output::param_unit(name);
             let ci = &j["ci95"][name];
             let t = j["truth"][name].as_f64();
             s.push_str(&format!(

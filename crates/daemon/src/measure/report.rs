@@ -264,11 +264,7 @@ impl RunReport {
             m.push_str("\n## Estimate (final iteration, all acquisitions pooled)\n\n| param | estimate | 95 % interval | truth | error % |\n|---|---|---|---|---|\n");
             let tv = self.truth.as_ref().map(|t| t.to_vec());
             for (i, name) in n.iter().enumerate() {
-                let (scale, unit) = if name.starts_with("tau") {
-                    (1e3, "ms")
-                } else {
-                    (1e6, "µPa⁻¹")
-                };
+                let (scale, unit) = crate::output::param_unit(name);
                 let truth = tv.as_ref().filter(|t| t.len() == n.len()).map(|t| t[i]);
                 m.push_str(&format!(
                     "| {name} | {:.4} {unit} | [{:.4}, {:.4}] | {} | {} |\n",

@@ -191,11 +191,7 @@ pub async fn read_line_async<R: AsyncBufRead + Unpin>(
     loop {
         let avail = r.fill_buf().await?;
         if avail.is_empty() {
-            return Ok(match (skipped, buf.is_empty()) {
-                (Some(n), _) => Line::TooLarge(n),
-                (None, true) => Line::Eof,
-                (None, false) => Line::Text(buf),
-            });
+            return Ok(at_eof(buf, skipped));
         }
         let (step, done) = step_line(avail, &mut buf, &mut skipped, max);
         r.consume(step);
@@ -212,11 +208,7 @@ pub fn read_line_blocking<R: BufRead>(r: &mut R, max: usize) -> std::io::Result<
     loop {
         let avail = r.fill_buf()?;
         if avail.is_empty() {
-            return Ok(match (skipped, buf.is_empty()) {
-                (Some(n), _) => Line::TooLarge(n),
-                (None, true) => Line::Eof,
-                (None, false) => Line::Text(buf),
-            });
+            return Ok(at_eof(buf, skipped));
         }
         let (step, done) = step_line(avail, &mut buf, &mut skipped, max);
         r.consume(step);
@@ -246,6 +238,15 @@ fn step_line(
         None => buf.extend_from_slice(chunk),
     }
     (chunk.len() + usize::from(done), done)
+}
+
+/// The line in progress when the stream ends: none at all, or a last unterminated one.
+fn at_eof(buf: Vec<u8>, skipped: Option<usize>) -> Line {
+    if skipped.is_none() && buf.is_empty() {
+        Line::Eof
+    } else {
+        finish(buf, skipped)
+    }
 }
 
 fn finish(buf: Vec<u8>, skipped: Option<usize>) -> Line {
