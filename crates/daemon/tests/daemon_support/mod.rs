@@ -259,9 +259,9 @@ pub fn wait_file(path: &Path, timeout: Duration) {
     }
 }
 
-/// Reads every `iter-NN.csv` (+ `.toml`) recording of a run directory; returns how many.
-pub fn read_recordings(dir: &Path) -> usize {
-    let mut n = 0;
+/// Every `iter-NN.csv` (+ `.toml`) recording of a run directory, read and checked non-empty.
+pub fn recordings(dir: &Path) -> Vec<viscoprobe_core::recording::Recording> {
+    let mut out = vec![];
     for e in std::fs::read_dir(dir).unwrap().flatten() {
         let name = e.file_name().into_string().unwrap();
         if name.starts_with("iter-") && name.ends_with(".csv") {
@@ -270,10 +270,15 @@ pub fn read_recordings(dir: &Path) -> usize {
             let rec = viscoprobe_core::recording::Recording::read(csv, side)
                 .unwrap_or_else(|err| panic!("{name}: {err}"));
             assert!(!rec.deflection_v.is_empty(), "{name} is empty");
-            n += 1;
+            out.push(rec);
         }
     }
-    n
+    out
+}
+
+/// How many recordings a run directory holds (each read and checked).
+pub fn read_recordings(dir: &Path) -> usize {
+    recordings(dir).len()
 }
 
 /// A plan that runs all 8 iterations (about 2 s): long enough to interrupt.
@@ -281,19 +286,7 @@ pub const LONG_PLAN: &str = "name = \"long\"\n[run]\nmax_iterations = 8\nrel_cha
 
 /// Samples in every `iter-NN.csv` recording of a run directory.
 pub fn recorded_samples(dir: &Path) -> usize {
-    let mut n = 0;
-    for e in std::fs::read_dir(dir).unwrap().flatten() {
-        let name = e.file_name().into_string().unwrap();
-        if name.starts_with("iter-") && name.ends_with(".csv") {
-            let csv = std::fs::File::open(e.path()).unwrap();
-            let side = std::fs::File::open(e.path().with_extension("toml")).unwrap();
-            n += viscoprobe_core::recording::Recording::read(csv, side)
-                .unwrap()
-                .deflection_v
-                .len();
-        }
-    }
-    n
+    recordings(dir).iter().map(|r| r.deflection_v.len()).sum()
 }
 
 /// Parses `raw-blocks.csv` line by line up to its last complete line: checks the header
