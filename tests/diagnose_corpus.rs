@@ -57,10 +57,12 @@ fn concealed_corpus_scores() {
         "piezo_hysteresis",
         "instrument_resonance",
     ] {
-        for o in outcomes
+        let cases: Vec<_> = outcomes
             .iter()
             .filter(|o| o.truth.len() == 1 && o.truth[0] == id)
-        {
+            .collect();
+        assert!(cases.len() >= 3, "{id}: only {} single-effect cases", cases.len());
+        for o in cases {
             assert!(o.top_correct(), "{}: top {:?}", o.name, o.top);
         }
     }
