@@ -61,7 +61,11 @@ fn concealed_corpus_scores() {
             .iter()
             .filter(|o| o.truth.len() == 1 && o.truth[0] == id)
             .collect();
-        assert!(cases.len() >= 3, "{id}: only {} single-effect cases", cases.len());
+        assert!(
+            cases.len() >= 3,
+            "{id}: only {} single-effect cases",
+            cases.len()
+        );
         for o in cases {
             assert!(o.top_correct(), "{}: top {:?}", o.name, o.top);
         }

@@ -320,6 +320,7 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
         held,
         mains_hz: pick_mains(&y[..free_end.max(2)], fs),
         floor_from_hz: 3.0 * fs / noise.samples.max(1) as f64,
+        fixed_columns: Default::default(),
         simulations: std::cell::Cell::new(0),
     };
 

@@ -19,6 +19,7 @@ use crate::twin::actuator::{ActuatorConfig, BoucWen, Creep, ResonantMode};
 use crate::twin::detector::DetectorConfig;
 use crate::twin::{CantileverConfig, ReferenceConfig, SampleConfig, TipConfig, Twin, TwinConfig};
 use nalgebra::{DMatrix, DVector};
+use std::borrow::Cow;
 
 /// One catalog effect, as a module of the twin.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -236,6 +237,8 @@ pub struct Problem {
     pub mains_hz: f64,
     /// Lowest frequency at which the noise floor was measured, Hz.
     pub floor_from_hz: f64,
+    /// Offset, time and mains columns, raw and whitened (see `fixed_columns`); leave empty.
+    pub fixed_columns: std::cell::OnceCell<[(Vec<f64>, Vec<f64>); 4]>,
     /// Twin simulations run so far (the cost of a diagnosis).
     pub simulations: std::cell::Cell<usize>,
 }
@@ -434,17 +437,50 @@ impl Problem {
         Some(sim)
     }
 
-    /// Columns of the closed-form part: the offset, then each linear effect's regressors.
-    fn regressors(&self, spec: &ModelSpec, sim: &Simulation) -> Vec<Vec<f64>> {
-        let n = self.drive.len();
-        let mut cols = vec![vec![1.0; n]];
+    /// The regressors that do not depend on the model (offset, time, mains cosine and sine),
+    /// raw and whitened, computed on first use: every evaluation needs them, whitening them
+    /// each time would cost as much as a fifth of a twin simulation.
+    fn fixed_columns(&self) -> &[(Vec<f64>, Vec<f64>); 4] {
+        self.fixed_columns.get_or_init(|| {
+            let w = 2.0 * std::f64::consts::PI * self.mains_hz;
+            let col = |c: Vec<f64>| {
+                let wc = self.whiten(&c);
+                (c, wc)
+            };
+            [
+                col(vec![1.0; self.drive.len()]),
+                col(self.t_s.clone()),
+                col(self.t_s.iter().map(|t| (w * t).cos()).collect()),
+                col(self.t_s.iter().map(|t| (w * t).sin()).collect()),
+            ]
+        })
+    }
+
+    /// Columns of the closed-form part, raw and whitened: the offset, then each linear
+    /// effect's regressors.
+    fn regressors(
+        &self,
+        spec: &ModelSpec,
+        sim: &Simulation,
+    ) -> Vec<(Cow<'_, [f64]>, Cow<'_, [f64]>)> {
+        let fixed = self.fixed_columns();
+        let borrowed = |i: usize| {
+            (
+                Cow::Borrowed(&fixed[i].0[..]),
+                Cow::Borrowed(&fixed[i].1[..]),
+            )
+        };
+        let owned = |c: Vec<f64>| {
+            let wc = self.whiten(&c);
+            (Cow::Owned(c), Cow::Owned(wc))
+        };
+        let mut cols = vec![borrowed(0)];
         for &e in &spec.effects {
             match e {
-                Effect::ThermalDrift => cols.push(self.t_s.clone()),
+                Effect::ThermalDrift => cols.push(borrowed(1)),
                 Effect::MainsInterference => {
-                    let w = 2.0 * std::f64::consts::PI * self.mains_hz;
-                    cols.push(self.t_s.iter().map(|t| (w * t).cos()).collect());
-                    cols.push(self.t_s.iter().map(|t| (w * t).sin()).collect());
+                    cols.push(borrowed(2));
+                    cols.push(borrowed(3));
                 }
                 Effect::HydrodynamicDrag => {
                     // The twin's drag: c·ḃ/K nm of deflection, i.e. c·ḃ/(K·C) V.
@@ -457,11 +493,11 @@ impl Problem {
                         )
                         .collect();
                     col[0] = col.get(1).copied().unwrap_or(0.0);
-                    cols.push(col);
+                    cols.push(owned(col));
                 }
                 Effect::DetectorNonlinearity => {
-                    cols.push(sim.clean_v.iter().map(|v| v * v).collect());
-                    cols.push(sim.clean_v.iter().map(|v| v * v * v).collect());
+                    cols.push(owned(sim.clean_v.iter().map(|v| v * v).collect()));
+                    cols.push(owned(sim.clean_v.iter().map(|v| v * v * v).collect()));
                 }
                 _ => {}
             }
@@ -497,9 +533,8 @@ impl Problem {
             .zip(&sim.clean_v)
             .map(|(y, m)| y - m)
             .collect();
-        let cols = self.regressors(spec, &sim);
+        let (cols, wcols): (Vec<_>, Vec<_>) = self.regressors(spec, &sim).into_iter().unzip();
         let wr = self.whiten(&r0);
-        let wcols: Vec<Vec<f64>> = cols.iter().map(|c| self.whiten(c)).collect();
         let m = cols.len();
         // Normal equations on the train rows, columns scaled to unit norm for conditioning.
         let norms: Vec<f64> = wcols
