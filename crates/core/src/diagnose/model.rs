@@ -21,6 +21,9 @@ use crate::twin::{CantileverConfig, ReferenceConfig, SampleConfig, TipConfig, Tw
 use nalgebra::{DMatrix, DVector};
 use std::borrow::Cow;
 
+/// One closed-form regressor: the column, and the column whitened.
+type Regressor<'a> = (Cow<'a, [f64]>, Cow<'a, [f64]>);
+
 /// One catalog effect, as a module of the twin.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum Effect {
@@ -458,11 +461,7 @@ impl Problem {
 
     /// Columns of the closed-form part, raw and whitened: the offset, then each linear
     /// effect's regressors.
-    fn regressors(
-        &self,
-        spec: &ModelSpec,
-        sim: &Simulation,
-    ) -> Vec<(Cow<'_, [f64]>, Cow<'_, [f64]>)> {
+    fn regressors(&self, spec: &ModelSpec, sim: &Simulation) -> Vec<Regressor<'_>> {
         let fixed = self.fixed_columns();
         let borrowed = |i: usize| {
             (
