@@ -19,7 +19,6 @@ pub struct Fitted {
     pub sd: Vec<f64>,
     /// Jacobian of the train residuals at θ (rows: train samples).
     pub jacobian: DMatrix<f64>,
-    pub iterations: usize,
 }
 
 /// Finite-difference step in θ: θ is in log units except the contact point (in 10 nm), so
@@ -81,7 +80,6 @@ pub struct ParamFit {
     pub jtj: DMatrix<f64>,
     /// Jacobian of the (projected) train residuals at `theta`, over the free parameters.
     pub jacobian: DMatrix<f64>,
-    pub iterations: usize,
 }
 
 /// Minimises χ²_train over the parameters `free` (others held), from `th0`. With
@@ -147,7 +145,6 @@ pub fn fit_params(
         eval,
         jtj: res.jtj,
         jacobian: res.jacobian,
-        iterations: res.iterations,
     })
 }
 
@@ -184,7 +181,6 @@ pub fn fit_model(
             eval: f.eval,
             sd,
             jacobian: f.jacobian,
-            iterations: f.iterations,
         });
     }
     best

@@ -253,7 +253,6 @@ pub struct Simulation {
     pub clean_v: Vec<f64>,
     /// Base (actuator) position, nm.
     pub base_nm: Vec<f64>,
-    pub in_contact: Vec<bool>,
     /// Indentation, m.
     pub indentation_m: Vec<f64>,
 }
@@ -424,7 +423,6 @@ impl Problem {
         let mut sim = Simulation {
             clean_v: Vec::with_capacity(n),
             base_nm: Vec::with_capacity(n),
-            in_contact: Vec::with_capacity(n),
             indentation_m: Vec::with_capacity(n),
         };
         for &d in &self.drive {
@@ -434,7 +432,6 @@ impl Problem {
             }
             sim.clean_v.push(s.deflection_v);
             sim.base_nm.push(s.truth.base_nm);
-            sim.in_contact.push(s.truth.in_contact);
             sim.indentation_m.push(s.truth.indentation_m);
         }
         Some(sim)
