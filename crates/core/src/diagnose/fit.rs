@@ -6,7 +6,7 @@
 //! Jacobian costs one twin simulation per parameter.
 
 use super::model::{Evaluation, ModelSpec, Problem};
-use crate::estimate::lm::{solve_lazy, LmOptions};
+use crate::estimate::lm::{solve_lazy, Damping, LmOptions};
 use nalgebra::{DMatrix, DVector};
 
 /// A fitted model.
@@ -136,6 +136,15 @@ pub fn fit_params(
         cost_tolerance: 1e-7,
         cost_tolerance_abs: 0.01,
         step_tolerance: 1e-7,
+        // Gentler than the estimators' default: on a real record far from the nominal model
+        // (the shared JPK gel) the default schedule settles in worse basins.
+        damping: Damping {
+            down: 4.0,
+            up: 8.0,
+            min: 1e-9,
+            max: 1e12,
+            diag_floor: 1e-12,
+        },
     };
     let x0: Vec<f64> = free.iter().map(|&i| th0[i]).collect();
     let res = solve_lazy(&x0, residuals, jacobian_at, lm_opts)?;

@@ -25,6 +25,31 @@ pub struct LmOptions {
     pub cost_tolerance_abs: f64,
     /// Step size (relative to 1 + |p|) below which the fit has converged.
     pub step_tolerance: f64,
+    pub damping: Damping,
+}
+
+/// Marquardt's damping schedule: λ starts at 1e-3, is divided by `down` after an accepted
+/// step (not below `min`), multiplied by `up` after a rejected one; at `max` no step lowers
+/// the cost and the fit has stopped. The diagonal it scales is floored at `diag_floor`.
+#[derive(Debug, Clone, Copy)]
+pub struct Damping {
+    pub down: f64,
+    pub up: f64,
+    pub min: f64,
+    pub max: f64,
+    pub diag_floor: f64,
+}
+
+impl Default for Damping {
+    fn default() -> Self {
+        Self {
+            down: 3.0,
+            up: 10.0,
+            min: 1e-12,
+            max: 1e16,
+            diag_floor: 1e-30,
+        }
+    }
 }
 
 impl Default for LmOptions {
@@ -35,6 +60,7 @@ impl Default for LmOptions {
             cost_tolerance: 1e-13,
             cost_tolerance_abs: 0.0,
             step_tolerance: 1e-11,
+            damping: Damping::default(),
         }
     }
 }
@@ -98,15 +124,16 @@ pub fn solve_lazy(
             converged = true;
             break;
         }
-        let diag: Vec<f64> = (0..n).map(|i| jtj[(i, i)].max(1e-30)).collect();
+        let d = opts.damping;
+        let diag: Vec<f64> = (0..n).map(|i| jtj[(i, i)].max(d.diag_floor)).collect();
         let mut accepted = false;
-        while lambda < 1e16 {
+        while lambda < d.max {
             let mut a = jtj.clone();
             for (i, d) in diag.iter().enumerate() {
                 a[(i, i)] += lambda * d;
             }
             let Some(chol) = a.cholesky() else {
-                lambda *= 10.0;
+                lambda *= d.up;
                 continue;
             };
             let mut step = -chol.solve(&g);
@@ -128,14 +155,14 @@ pub fn solve_lazy(
                     r = r_new;
                     jtj = jac.transpose() * &jac;
                     cost = new_cost;
-                    lambda = (lambda / 3.0).max(1e-12);
+                    lambda = (lambda / d.down).max(d.min);
                     accepted = true;
                     if small_gain || small_step {
                         converged = true;
                     }
                     break;
                 }
-                _ => lambda *= 10.0,
+                _ => lambda *= d.up,
             }
         }
         if converged {
