@@ -847,10 +847,31 @@ impl StartContext {
             .iter()
             .map(|&t: &f64| with(&[(0.1 * j_inst).ln(), t.ln()]))
             .collect(),
-            Effect::InstrumentResonance => [self.resonance_guess_hz, fs / 8.0, fs / 4.0]
-                .iter()
-                .map(|&f: &f64| with(&[f.ln(), (5.0f64).ln()]))
-                .collect(),
+            Effect::InstrumentResonance => {
+                // The mode's frequency is the one parameter no local fit finds: a mode above
+                // the top excited line shows only as a gain on the highest lines, and from a
+                // start an octave away the fit bends the material instead. A coarse grid of
+                // modes up to just below Nyquist, each one simulation with everything else
+                // held, puts the fit in the right basin for the price of 30 simulations.
+                let spec = ModelSpec::with(&[Effect::InstrumentResonance]);
+                let (f_lo, f_hi) = (50.0f64, 0.475 * fs);
+                let n = 15;
+                let mut grid: Vec<(f64, Vec<f64>)> = (0..n)
+                    .flat_map(|i| {
+                        let f = f_lo * (f_hi / f_lo).powf(i as f64 / (n - 1) as f64);
+                        [1.5f64, 5.0].map(|q| with(&[f.ln(), q.ln()]))
+                    })
+                    .filter_map(|t| Some((problem.evaluate(&spec, &t)?.chi2_train, t)))
+                    .collect();
+                grid.sort_by(|a, b| a.0.total_cmp(&b.0));
+                let mut out: Vec<Vec<f64>> = grid.into_iter().take(1).map(|g| g.1).collect();
+                out.extend(
+                    [self.resonance_guess_hz, fs / 4.0]
+                        .iter()
+                        .map(|&f: &f64| with(&[f.ln(), (5.0f64).ln()])),
+                );
+                out
+            }
             Effect::Adhesion => vec![with(&[(0.5 * self.pull_off_nn).max(0.05).ln()])],
             Effect::SubstrateEffect => [3.0, 10.0]
                 .iter()

@@ -75,7 +75,9 @@ impl Effect {
             Effect::PiezoCreep => "creep of the piezo actuator after a voltage change",
             Effect::ThermalDrift => "thermal drift of the deflection signal",
             Effect::MissingRelaxation => "a retardation time the nominal Prony series lacks",
-            Effect::InstrumentResonance => "a resonance of the scanner within the band",
+            Effect::InstrumentResonance => {
+                "a resonance within the band (a scanner mode; in contact a cantilever mode looks the same)"
+            }
             Effect::Adhesion => "tip–sample adhesion (DMT): snap-in and a pull-off on retract",
             Effect::TipGeometry => "a tip shape other than the one declared",
             Effect::HydrodynamicDrag => "viscous drag on the lever, proportional to its velocity",
