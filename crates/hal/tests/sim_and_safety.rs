@@ -32,6 +32,7 @@ fn twin() -> TwinConfig {
             poisson_ratio: 0.5,
             contact_point_nm: 100.0,
             adhesion_nn: None,
+            neck: None,
             thickness_nm: None,
         },
         reference: ReferenceConfig {

@@ -278,6 +278,7 @@ fn design_twin() -> TwinConfig {
             poisson_ratio: 0.5,
             contact_point_nm: 100.0,
             adhesion_nn: None,
+            neck: None,
             thickness_nm: None,
         },
         reference: ReferenceConfig::default(),

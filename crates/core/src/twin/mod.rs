@@ -92,9 +92,25 @@ pub struct SampleConfig {
     /// DMT adhesion (pull-off) force, nN (absent: none).
     #[serde(default)]
     pub adhesion_nn: Option<f64>,
+    /// An adhesive neck that holds the tip after the pull-off (needs `adhesion_nn`; absent:
+    /// the tip lets go at the pull-off).
+    #[serde(default)]
+    pub neck: Option<AdhesiveNeck>,
     /// Thickness of a film bonded to a rigid substrate, nm (absent: half-space).
     #[serde(default)]
     pub thickness_nm: Option<f64>,
+}
+
+/// `[sample.neck]`: a soft, sticky sample does not let go at the DMT pull-off; a neck (a
+/// tether of material, or a meniscus) drawn out of the surface holds the tip and pulls with
+/// the pull-off force plus a spring until it breaks. Real gels show this as a long plateau of
+/// negative force on retract, micrometres past the contact point, ending in a late snap-off.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct AdhesiveNeck {
+    /// Extension (tip travel away from where the contact let go) at which the neck breaks, nm.
+    pub length_nm: f64,
+    /// Stiffness of the neck, N/m (its pull grows by this per metre of extension).
+    pub stiffness_n_per_m: f64,
 }
 
 fn half() -> f64 {
@@ -222,6 +238,17 @@ impl TwinConfig {
         if let Some(h) = self.sample.thickness_nm {
             positive(p("sample.thickness_nm"), h);
         }
+        if let Some(nk) = self.sample.neck {
+            positive(p("sample.neck.length_nm"), nk.length_nm);
+            positive(p("sample.neck.stiffness_n_per_m"), nk.stiffness_n_per_m);
+            if self.sample.adhesion_nn.is_none() {
+                issues.push(ConfigIssue {
+                    path: p("sample.neck"),
+                    message: "an adhesive neck needs `sample.adhesion_nn` (the force it starts at)"
+                        .into(),
+                });
+            }
+        }
         if m.j0_per_pa.is_finite() && m.instantaneous_compliance() <= 0.0 {
             issues.push(ConfigIssue {
                 path: p("sample.material"),
@@ -322,6 +349,9 @@ pub struct Twin {
     last_base_nm: f64,
     /// Last contact solution (m): the warm start of the next solve.
     last_d_m: f64,
+    /// While an adhesive neck holds the tip: the tip's position (m, toward the sample from the
+    /// contact point) where the contact let go.
+    neck_from_m: Option<f64>,
 }
 
 impl Twin {
@@ -343,6 +373,7 @@ impl Twin {
             fs_hz,
             last_base_nm: 0.0,
             last_d_m: 0.0,
+            neck_from_m: None,
         };
         twin.settle(0.0);
         twin
@@ -361,6 +392,7 @@ impl Twin {
         self.actuator.settle(v);
         self.material = MaterialState::new(&self.cfg.sample.material, self.fs_hz);
         self.in_contact = false;
+        self.neck_from_m = None;
         self.last_base_nm = self.actuator.position_nm();
         let d = self.solve_contact(self.last_base_nm, false);
         if let Some(l) = self.lever.as_mut() {
@@ -374,6 +406,7 @@ impl Twin {
     pub fn select(&mut self, slot: SampleSlot) {
         self.slot = slot;
         self.in_contact = false;
+        self.neck_from_m = None;
         self.material = MaterialState::new(&self.cfg.sample.material, self.fs_hz);
     }
 
@@ -515,15 +548,43 @@ impl Twin {
             }
             let h = (gap_m - d).max(0.0);
             (d, cf * (k_si * d + f_adh_n) / corr(h))
+        } else if let Some(d) = self.neck_hold(gap_m, d_lo, commit) {
+            (d, 0.0)
         } else {
             (0.0, 0.0)
         };
         if commit {
+            if touching {
+                self.neck_from_m = None;
+            }
             self.in_contact = touching;
             self.material.commit(u);
             self.last_d_m = d_m;
         }
         d_m * 1e9
+    }
+
+    /// Deflection (m) while an adhesive neck holds the tip out of contact, or `None` when no
+    /// neck holds it (none configured, the contact was not just lost, or the neck broke).
+    /// `d_lo` is the deflection at the pull-off, `-F_adh/K`.
+    fn neck_hold(&mut self, gap_m: f64, d_lo: f64, commit: bool) -> Option<f64> {
+        let neck = self.cfg.sample.neck?;
+        let from = match self.neck_from_m {
+            Some(x) => x,
+            // The contact is being lost now: the neck starts where the tip is.
+            None if self.in_contact => gap_m - d_lo,
+            None => return None,
+        };
+        let k = self.cfg.cantilever.spring_constant_n_per_m;
+        let kn = neck.stiffness_n_per_m;
+        // K·d = −F_adh − k_n·e, with the extension e = from − (gap − d): linear in d.
+        let d = (k * d_lo - kn * (from - gap_m)) / (k + kn);
+        let extension = from - (gap_m - d);
+        let holds = (0.0..=neck.length_nm * 1e-9).contains(&extension);
+        if commit {
+            self.neck_from_m = holds.then_some(from);
+        }
+        holds.then_some(d)
     }
 }
 

@@ -28,6 +28,7 @@ fn base_config() -> TwinConfig {
             poisson_ratio: 0.5,
             contact_point_nm: 100.0,
             adhesion_nn: None,
+            neck: None,
             thickness_nm: None,
         },
         reference: ReferenceConfig {
@@ -100,6 +101,42 @@ fn adhesion_gives_pull_off() {
         "pull-off force {min_force} N, expected −2 nN"
     );
     assert!(!twin.step(0.0).truth.in_contact);
+}
+
+/// With an adhesive neck the tip is held past the DMT pull-off: the pull grows by the neck's
+/// stiffness over its length, −(F_adh + k_n·L), then the neck breaks and the force is zero.
+#[test]
+fn adhesive_neck_holds_past_the_pull_off() {
+    let mut cfg = base_config();
+    cfg.sample.adhesion_nn = Some(2.0);
+    cfg.sample.neck = Some(AdhesiveNeck {
+        length_nm: 50.0,
+        stiffness_n_per_m: 0.01,
+    });
+    assert!(cfg.validate("").is_empty());
+    let mut twin = Twin::new(&cfg, 8000.0);
+    let (mut min_force, mut released_at_v) = (0.0f64, None);
+    let n = 4000;
+    let mut was_pulling = false;
+    for k in 0..=2 * n {
+        let v = 1.5 * (1.0 - ((k as f64 - n as f64) / n as f64).abs()); // up to 150 nm and back
+        let s = twin.step(v);
+        min_force = min_force.min(s.truth.force_n);
+        if was_pulling && s.truth.force_n == 0.0 && released_at_v.is_none() {
+            released_at_v = Some(v);
+        }
+        was_pulling = s.truth.force_n < -1e-12;
+    }
+    // −(2 nN + 0.01 N/m · 50 nm) = −2.5 nN.
+    assert!(
+        (min_force + 2.5e-9).abs() < 0.02e-9,
+        "largest pull {min_force} N, expected −2.5 nN"
+    );
+    assert!(released_at_v.is_some(), "the neck never broke");
+    assert_eq!(twin.step(0.0).truth.force_n, 0.0);
+    let mut bad = cfg.clone();
+    bad.sample.adhesion_nn = None;
+    assert!(bad.validate("").iter().any(|i| i.path == "sample.neck"));
 }
 
 /// A force held constant on a viscoelastic sample creeps: the indentation follows
