@@ -74,10 +74,13 @@ fn concealed_corpus_scores() {
 
 const TOP1_FLOOR: f64 = 0.9;
 
-/// The real gel recording: the retract pull-off is located as a significant mismatch and the
-/// diagnosis finds physics that improves the held-out fit.
+/// The real gel recording: the retract pull-off is located as a significant mismatch, the
+/// diagnosis names `adhesion` for it (the gel holds the tip micrometres past the contact, so
+/// only the adhesive neck describes it), and the held-out fit improves. The file has the
+/// stage's height sensor, which is the base position; its misfit is gross, so the residuals
+/// are weighted equally.
 #[test]
-fn jpk_pull_off_is_located() {
+fn jpk_pull_off_is_located_and_named_adhesion() {
     let path = concat!(
         env!("CARGO_MANIFEST_DIR"),
         "/../shared/data/real/fmt-jpk-cc_pr14-polymergel-2021.06.30.jpk-force"
@@ -102,6 +105,25 @@ fn jpk_pull_off_is_located() {
         pull.from,
         pull.to
     );
+    let named: Vec<&str> = d
+        .effects
+        .iter()
+        .filter(|e| e.significant)
+        .map(|e| e.id)
+        .collect();
+    assert_eq!(named.first(), Some(&"adhesion"), "named {named:?}");
+    assert_eq!(d.base_position.id(), "measured_height");
+    assert_eq!(d.weighting.id(), "equal");
+    // The neck holds the tip for micrometres: the retract shows the pull for about 0.55 s
+    // at 10 µm/s.
+    let adh = &d.effects[0];
+    let length = adh
+        .params
+        .iter()
+        .find(|p| p.name == "neck_length_nm")
+        .expect("a neck")
+        .value;
+    assert!((2_000.0..10_000.0).contains(&length), "neck {length} nm");
     assert!(
         d.after.held_out_nrmse < 0.8 * d.before.held_out_nrmse,
         "held-out NRMSE {} → {}",

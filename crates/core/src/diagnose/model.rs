@@ -17,7 +17,9 @@
 use crate::prony::{PronySeries, PronyTerm};
 use crate::twin::actuator::{ActuatorConfig, BoucWen, Creep, ResonantMode};
 use crate::twin::detector::DetectorConfig;
-use crate::twin::{CantileverConfig, ReferenceConfig, SampleConfig, TipConfig, Twin, TwinConfig};
+use crate::twin::{
+    AdhesiveNeck, CantileverConfig, ReferenceConfig, SampleConfig, TipConfig, Twin, TwinConfig,
+};
 use nalgebra::{DMatrix, DVector};
 use std::borrow::Cow;
 
@@ -78,7 +80,9 @@ impl Effect {
             Effect::InstrumentResonance => {
                 "a resonance within the band (a scanner mode; in contact a cantilever mode looks the same)"
             }
-            Effect::Adhesion => "tip–sample adhesion (DMT): snap-in and a pull-off on retract",
+            Effect::Adhesion => {
+                "tip–sample adhesion (DMT): a pull-off on retract, or an adhesive neck that holds the tip past it"
+            }
             Effect::TipGeometry => "a tip shape other than the one declared",
             Effect::HydrodynamicDrag => "viscous drag on the lever, proportional to its velocity",
             Effect::ChannelDelay => "a delay of the deflection channel behind the drive",
@@ -157,11 +161,22 @@ impl Effect {
     }
 }
 
-/// Which model: Prony order of the material and the effects switched on.
+/// Which model: the effects switched on.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct ModelSpec {
     pub effects: Vec<Effect>,
+    /// `adhesion` with an adhesive neck that holds the tip past the DMT pull-off (two more
+    /// parameters: the neck's length and stiffness). Fitted beside the plain DMT pull-off
+    /// and kept when it wins on the information criterion.
+    pub adhesion_neck: bool,
 }
+
+/// The parameters `adhesion` has with a neck.
+const ADHESION_NECK_NAMES: &[(&str, &str)] = &[
+    ("pull_off_force_nn", "nN"),
+    ("neck_length_nm", "nm"),
+    ("neck_stiffness_n_per_m", "N/m"),
+];
 
 /// Prony terms of the nominal material. The nominal twin is the simplest model that describes
 /// a viscoelastic indentation across a broadband record; a third time constant is a catalog
@@ -170,14 +185,39 @@ pub const NOMINAL_TERMS: usize = 2;
 
 impl ModelSpec {
     pub fn nominal() -> Self {
-        Self { effects: vec![] }
+        Self::with(&[])
     }
 
     pub fn with(effects: &[Effect]) -> Self {
         let mut e = effects.to_vec();
         e.sort();
         e.dedup();
-        Self { effects: e }
+        Self {
+            effects: e,
+            adhesion_neck: false,
+        }
+    }
+
+    /// The forms of this model worth fitting apart: adhesion with and without a neck.
+    pub fn variants(self) -> Vec<ModelSpec> {
+        if self.has(Effect::Adhesion) && !self.adhesion_neck {
+            let neck = ModelSpec {
+                adhesion_neck: true,
+                ..self.clone()
+            };
+            vec![self, neck]
+        } else {
+            vec![self]
+        }
+    }
+
+    /// Names and units of effect `e`'s nonlinear parameters in this model, in θ order.
+    pub fn params_of(&self, e: Effect) -> &'static [(&'static str, &'static str)] {
+        if e == Effect::Adhesion && self.adhesion_neck {
+            ADHESION_NECK_NAMES
+        } else {
+            e.nonlinear_names()
+        }
     }
 
     pub fn has(&self, e: Effect) -> bool {
@@ -190,7 +230,12 @@ impl ModelSpec {
     }
 
     pub fn n_nonlinear(&self) -> usize {
-        self.n_nominal() + self.effects.iter().map(|e| e.n_nonlinear()).sum::<usize>()
+        self.n_nominal()
+            + self
+                .effects
+                .iter()
+                .map(|&e| self.params_of(e).len())
+                .sum::<usize>()
     }
 
     /// Offset of effect `e`'s nonlinear parameters in θ.
@@ -200,7 +245,7 @@ impl ModelSpec {
             if x == e {
                 return Some(off);
             }
-            off += x.n_nonlinear();
+            off += self.params_of(x).len();
         }
         None
     }
@@ -399,6 +444,14 @@ impl Problem {
                 poisson_ratio: self.poisson_ratio,
                 contact_point_nm: self.contact_point_nm(th),
                 adhesion_nn: p(Effect::Adhesion, 0).map(f64::exp),
+                neck: spec
+                    .adhesion_neck
+                    .then(|| p(Effect::Adhesion, 1).zip(p(Effect::Adhesion, 2)))
+                    .flatten()
+                    .map(|(l, k)| AdhesiveNeck {
+                        length_nm: l.exp(),
+                        stiffness_n_per_m: k.exp(),
+                    }),
                 thickness_nm: p(Effect::SubstrateEffect, 0).map(f64::exp),
             },
             reference: ReferenceConfig::default(),
@@ -610,7 +663,7 @@ impl Problem {
     ) -> Vec<(String, &'static str, f64, [f64; 2])> {
         let mut out = Vec::new();
         if let Some(o) = spec.offset_of(effect) {
-            let names = effect.nonlinear_names();
+            let names = spec.params_of(effect);
             for (i, (name, unit)) in names.iter().enumerate() {
                 let (x, s) = (th[o + i], sd.get(o + i).copied().unwrap_or(f64::NAN));
                 let (v, ci) = if effect == Effect::PiezoHysteresis && i == 2 {

@@ -11,7 +11,9 @@ use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
 use viscoprobe_core::diagnose::bench::{score, CaseOutcome, Score};
 use viscoprobe_core::diagnose::corpus::{concealed_corpus, CorpusCase};
-use viscoprobe_core::diagnose::{diagnose, DiagnoseOptions, Diagnosis, FitSummary};
+use viscoprobe_core::diagnose::{
+    diagnose, BasePosition, DiagnoseOptions, Diagnosis, FitSummary, Weighting,
+};
 
 #[derive(Debug, Args)]
 pub struct DiagnoseArgs {
@@ -103,6 +105,8 @@ pub fn diagnosis_json(file: &str, d: &Diagnosis, seconds: f64) -> Value {
             "samples": d.noise.samples,
             "source": d.noise.source,
         },
+        "base_position": d.base_position.id(),
+        "weighting": d.weighting.id(),
         "cost": {"simulations": d.simulations, "seconds": seconds},
     })
 }
@@ -158,6 +162,20 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
         d.noise.ar.len() - 1,
         d.noise.samples,
         d.noise.source
+    );
+    println!(
+        "base position: {}; residuals weighted {}",
+        match d.base_position {
+            BasePosition::Drive => "the drive through the actuator model",
+            BasePosition::HeightSensor =>
+                "the stage's height sensor (measured_height_nm); piezo effects, between drive and sensor, are not diagnosed",
+        },
+        match d.weighting {
+            Weighting::Whitened => "by the floor's noise model (whitened)",
+            Weighting::Equal if d.noise.ar.len() > 1 =>
+                "equally: the nominal misfit is far above the floor, whose noise model then says nothing of how to weight it",
+            Weighting::Equal => "equally (the floor is white)",
+        }
     );
     let sig: Vec<_> = d.effects.iter().filter(|e| e.significant).collect();
     match d.verdict {
