@@ -6,16 +6,30 @@ use viscoprobe_core::diagnose::fan::Fan;
 
 /// Runs a fan's jobs on up to `threads` threads (the caller's among them), each taking the
 /// next job not yet started.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Default)]
 pub struct Threads {
     threads: usize,
+    /// Jobs run, and the rounds they took (a batch of n jobs on t threads: ⌈n/t⌉ rounds).
+    jobs: AtomicUsize,
+    rounds: AtomicUsize,
 }
 
 impl Threads {
     pub fn new(threads: usize) -> Self {
         Self {
             threads: threads.max(1),
+            ..Default::default()
         }
+    }
+
+    /// `(jobs, rounds)` so far. With equal jobs (twin simulations of one record), a run that
+    /// did `total` simulations of which `jobs` through this fan takes about
+    /// `total − jobs + rounds` simulation times: the speed-up a loaded machine hides.
+    pub fn stats(&self) -> (usize, usize) {
+        (
+            self.jobs.load(Ordering::Relaxed),
+            self.rounds.load(Ordering::Relaxed),
+        )
     }
 
     /// As many threads as the machine has cores (1 when that is unknown).
@@ -36,6 +50,9 @@ pub fn cores() -> usize {
 impl Fan for Threads {
     fn run(&self, n: usize, job: &(dyn Fn(usize) + Sync)) {
         let workers = self.threads.min(n);
+        self.jobs.fetch_add(n, Ordering::Relaxed);
+        self.rounds
+            .fetch_add(n.div_ceil(workers.max(1)), Ordering::Relaxed);
         if workers <= 1 {
             for i in 0..n {
                 job(i);

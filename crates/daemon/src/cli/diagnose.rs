@@ -136,6 +136,15 @@ pub fn run(args: DiagnoseArgs) -> anyhow::Result<()> {
     let d = diagnose_with(&rec, &DiagnoseOptions::default(), &fan)
         .with_context(|| format!("diagnosing {}", args.recording.display()))?;
     let seconds = started.elapsed().as_secs_f64();
+    if std::env::var_os("VP_DIAG_DEBUG").is_some() {
+        let (jobs, rounds) = fan.stats();
+        eprintln!(
+            "fan: {jobs} of {} simulations side by side on {} threads; critical path {} simulations",
+            d.simulations,
+            fan.threads(),
+            d.simulations - jobs + rounds
+        );
+    }
     if let Some(dir) = &args.plot {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         let written = write_plots(dir, &d)?;
