@@ -187,11 +187,12 @@ pub fn fit_model(
     fan: &dyn Fan,
 ) -> Option<Fitted> {
     let free: Vec<usize> = (0..spec.n_nonlinear()).collect();
+    // The starts are independent fits: a fan may run them side by side.
+    let fits = fan::map(fan, starts.len(), |k| {
+        fit_params(problem, spec, &starts[k], &free, opts, None, fan)
+    });
     let mut best: Option<Fitted> = None;
-    for s in starts {
-        let Some(f) = fit_params(problem, spec, s, &free, opts, None, fan) else {
-            continue;
-        };
+    for f in fits.into_iter().flatten() {
         if best
             .as_ref()
             .is_some_and(|b| b.eval.chi2_train <= f.eval.chi2_train)
@@ -233,24 +234,31 @@ pub fn screen(
         max_iterations: 10,
         max_step: 1.5,
     };
-    let mut best: Option<(f64, Vec<f64>)> = None;
-    for s in starts {
-        let r = if free.is_empty() {
+    let projected = |r: &[f64]| {
+        let rv = DVector::from_column_slice(r);
+        let c = q.transpose() * &rv;
+        (rv - q * c).norm_squared()
+    };
+    let fits: Vec<Option<(f64, Vec<f64>)>> = if free.is_empty() {
+        // Nothing to fit (one start, in practice): an evaluation per start, and none at all
+        // when one fails.
+        let mut v = vec![];
+        for s in starts {
             let e = problem.evaluate(spec, s)?;
-            let rv = DVector::from_column_slice(&e.train_residuals);
-            let c = q.transpose() * &rv;
-            Some(((rv - q * c).norm_squared(), s.clone()))
-        } else {
-            fit_params(problem, spec, s, &free, opts, Some(q), fan).map(|f| {
-                let rv = DVector::from_column_slice(&f.eval.train_residuals);
-                let c = q.transpose() * &rv;
-                ((rv - q * c).norm_squared(), f.theta)
-            })
-        };
-        if let Some((c, th)) = r {
-            if best.as_ref().is_none_or(|b| c < b.0) {
-                best = Some((c, th));
-            }
+            v.push(Some((projected(&e.train_residuals), s.clone())));
+        }
+        v
+    } else {
+        // The starts are independent fits: a fan may run them side by side.
+        fan::map(fan, starts.len(), |k| {
+            fit_params(problem, spec, &starts[k], &free, opts, Some(q), fan)
+                .map(|f| (projected(&f.eval.train_residuals), f.theta))
+        })
+    };
+    let mut best: Option<(f64, Vec<f64>)> = None;
+    for (c, th) in fits.into_iter().flatten() {
+        if best.as_ref().is_none_or(|b| c < b.0) {
+            best = Some((c, th));
         }
     }
     best

@@ -401,14 +401,16 @@ pub fn diagnose_with(
     // 3. Screen every catalog effect.
     let q = orthonormal_basis(&nom.jacobian);
     let ctx = StartContext::new(&problem, &nom, &white_nom, base, &phases);
-    let mut screened: Vec<(Effect, f64, Vec<f64>)> = Effect::ALL
-        .iter()
-        .filter_map(|&e| {
-            let spec = ModelSpec::with(&[e]);
-            let st = ctx.starts(&problem, &nom, e, fan);
-            screen(&problem, &spec, &st, &q, fan).map(|(c, th)| (e, nom.eval.chi2_train - c, th))
-        })
-        .collect();
+    // The candidates are independent of one another: a fan may screen them side by side.
+    let mut screened: Vec<(Effect, f64, Vec<f64>)> = fan::map(fan, Effect::ALL.len(), |k| {
+        let e = Effect::ALL[k];
+        let spec = ModelSpec::with(&[e]);
+        let st = ctx.starts(&problem, &nom, e, fan);
+        screen(&problem, &spec, &st, &q, fan).map(|(c, th)| (e, nom.eval.chi2_train - c, th))
+    })
+    .into_iter()
+    .flatten()
+    .collect();
     screened.sort_by(|a, b| b.1.total_cmp(&a.1));
     let sims_screen = problem.simulations();
 
@@ -461,21 +463,25 @@ pub fn diagnose_with(
             }
         }
     }
-    for (e, _, th_s) in to_refit.iter().map(|&i| &screened[i]) {
-        let spec = ModelSpec::with(&[*e]);
-        let mut st = vec![th_s.clone()];
-        st.extend(ctx.starts(&problem, &nom, *e, fan).into_iter().take(1));
-        if distorted {
-            // A nominal fit far above the floor has bent its parameters to mimic what is
-            // missing; start the candidate from the undistorted first estimate as well.
-            let mut first = nom.clone();
-            first.theta = starts[0].clone();
-            st.extend(ctx.starts(&problem, &first, *e, fan).into_iter().take(1));
-        }
-        if let Some(f) = fit_model(&problem, &spec, &st, refit_opts, fan) {
-            singles.push((*e, f));
-        }
-    }
+    // The refits are independent too.
+    singles.extend(
+        fan::map(fan, to_refit.len(), |j| {
+            let (e, _, th_s) = &screened[to_refit[j]];
+            let spec = ModelSpec::with(&[*e]);
+            let mut st = vec![th_s.clone()];
+            st.extend(ctx.starts(&problem, &nom, *e, fan).into_iter().take(1));
+            if distorted {
+                // A nominal fit far above the floor has bent its parameters to mimic what is
+                // missing; start the candidate from the undistorted first estimate as well.
+                let mut first = nom.clone();
+                first.theta = starts[0].clone();
+                st.extend(ctx.starts(&problem, &first, *e, fan).into_iter().take(1));
+            }
+            fit_model(&problem, &spec, &st, refit_opts, fan).map(|f| (*e, f))
+        })
+        .into_iter()
+        .flatten(),
+    );
     let judge = |base: &Fitted, cand: &Fitted| -> (bool, f64, f64, f64) {
         let k = (model::n_params(&problem, &cand.spec) as f64
             - model::n_params(&problem, &base.spec) as f64)
@@ -544,15 +550,18 @@ pub fn diagnose_with(
             .filter(|s| leaves_structure(&s.1))
             .cloned()
         {
-            let mut best_pair: Option<(Effect, Fitted, f64)> = None;
-            for (b, fb) in singles.iter().filter(|(b, _)| *b != a) {
+            let others: Vec<&(Effect, Fitted)> = singles.iter().filter(|(b, _)| *b != a).collect();
+            let pairs = fan::map(fan, others.len(), |j| {
+                let (b, fb) = others[j];
                 let spec = ModelSpec::with(&[a, *b]);
                 let start = combine(&spec, &fa, fb);
-                if let Some(fp) = fit_model(&problem, &spec, &[start], refit_opts, fan) {
-                    let (ok, _, d_ho, _) = judge(&fa, &fp);
-                    if ok && best_pair.as_ref().is_none_or(|p| d_ho > p.2) {
-                        best_pair = Some((*b, fp, d_ho));
-                    }
+                fit_model(&problem, &spec, &[start], refit_opts, fan).map(|fp| (*b, fp))
+            });
+            let mut best_pair: Option<(Effect, Fitted, f64)> = None;
+            for (b, fp) in pairs.into_iter().flatten() {
+                let (ok, _, d_ho, _) = judge(&fa, &fp);
+                if ok && best_pair.as_ref().is_none_or(|p| d_ho > p.2) {
+                    best_pair = Some((b, fp, d_ho));
                 }
             }
             if let Some((b, fp, _)) = best_pair {
