@@ -133,16 +133,15 @@ pub fn run(args: DiagnoseArgs) -> anyhow::Result<()> {
         );
     }
     let fan = args.threads.map_or_else(Threads::all_cores, Threads::new);
+    let virtual_start = crate::fan::virtual_now();
     let d = diagnose_with(&rec, &DiagnoseOptions::default(), &fan)
         .with_context(|| format!("diagnosing {}", args.recording.display()))?;
     let seconds = started.elapsed().as_secs_f64();
     if std::env::var_os("VP_DIAG_DEBUG").is_some() {
-        let (jobs, rounds) = fan.stats();
         eprintln!(
-            "fan: {jobs} of {} simulations side by side on {} threads; critical path {} simulations",
-            d.simulations,
+            "fan: {:.1} s on {} threads of an idle machine ({seconds:.1} s here)",
+            crate::fan::virtual_now() - virtual_start,
             fan.threads(),
-            d.simulations - jobs + rounds
         );
     }
     if let Some(dir) = &args.plot {
