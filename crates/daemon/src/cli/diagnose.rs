@@ -486,25 +486,31 @@ pub fn run_corpus(
     progress: impl Fn(&CaseOutcome, usize, usize) + Sync,
 ) -> anyhow::Result<Vec<CaseOutcome>> {
     let threads = threads.clamp(1, cases.len().max(1));
-    let fan = Threads::new(cores() / threads);
+    // Each case its own fan: a case's helper threads are not the others' to take.
+    let per_case = cores() / threads;
     let next = std::sync::atomic::AtomicUsize::new(0);
     let done = std::sync::atomic::AtomicUsize::new(0);
     let out = std::sync::Mutex::new(Vec::<(usize, anyhow::Result<CaseOutcome>)>::new());
     std::thread::scope(|s| {
         for _ in 0..threads {
-            s.spawn(|| loop {
-                let i = next.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
-                let Some(c) = cases.get(i) else { break };
-                let t0 = std::time::Instant::now();
-                let r = diagnose_with(&c.recording, &DiagnoseOptions::default(), &fan)
-                    .map(|d| CaseOutcome::new(&c.name, &c.effects, &d, t0.elapsed().as_secs_f64()))
-                    .with_context(|| format!("case {}", c.name));
-                if let Ok(o) = &r {
-                    let k = done.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1;
-                    progress(o, k, cases.len());
-                }
-                if let Ok(mut g) = out.lock() {
-                    g.push((i, r));
+            s.spawn(|| {
+                let fan = Threads::new(per_case);
+                loop {
+                    let i = next.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+                    let Some(c) = cases.get(i) else { break };
+                    let t0 = std::time::Instant::now();
+                    let r = diagnose_with(&c.recording, &DiagnoseOptions::default(), &fan)
+                        .map(|d| {
+                            CaseOutcome::new(&c.name, &c.effects, &d, t0.elapsed().as_secs_f64())
+                        })
+                        .with_context(|| format!("case {}", c.name));
+                    if let Ok(o) = &r {
+                        let k = done.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1;
+                        progress(o, k, cases.len());
+                    }
+                    if let Ok(mut g) = out.lock() {
+                        g.push((i, r));
+                    }
                 }
             });
         }
