@@ -3,6 +3,7 @@
 //! the science it prints comes from `viscoprobe_core`.
 pub mod cli;
 pub mod config;
+pub mod fan;
 pub mod measure;
 pub mod output;
 pub mod plot;

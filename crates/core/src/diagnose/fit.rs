@@ -5,9 +5,11 @@
 //! a finite-difference Jacobian, which that entry point asks for only at accepted points: each
 //! Jacobian costs one twin simulation per parameter.
 
+use super::fan::{self, Fan};
 use super::model::{Evaluation, ModelSpec, Problem};
 use crate::estimate::lm::{solve_lazy, Damping, LmOptions};
 use nalgebra::{DMatrix, DVector};
+use std::sync::atomic::{AtomicBool, Ordering};
 
 /// A fitted model.
 #[derive(Debug, Clone)]
@@ -25,16 +27,24 @@ pub struct Fitted {
 /// 1e-4 is 0.01 % or 1 pm.
 const FD_STEP: f64 = 1e-4;
 
-/// Jacobian of the train residuals over the parameters `which`, by forward differences.
+/// Jacobian of the train residuals over the parameters `which`, by forward differences. The
+/// columns are independent simulations: `fan` may run them side by side.
 fn jacobian(
     problem: &Problem,
     spec: &ModelSpec,
     th: &[f64],
     r0: &[f64],
     which: &[usize],
+    fan: &dyn Fan,
 ) -> Option<DMatrix<f64>> {
-    let mut jac = DMatrix::<f64>::zeros(r0.len(), which.len());
-    for (c, &i) in which.iter().enumerate() {
+    // A column that fails fails the Jacobian: the columns not yet started are skipped then
+    // (all of them after it when the fan is serial, as a plain loop would).
+    let failed = AtomicBool::new(false);
+    let columns = fan::map(fan, which.len(), |c| {
+        if failed.load(Ordering::Relaxed) {
+            return None;
+        }
+        let i = which[c];
         // Forward difference; backward where the forward point is not physical (a bound).
         let mut h = FD_STEP;
         let mut tp = th.to_vec();
@@ -44,10 +54,19 @@ fn jacobian(
             None => {
                 h = -h;
                 tp[i] = th[i] + h;
-                problem.evaluate(spec, &tp)?
+                let Some(e) = problem.evaluate(spec, &tp) else {
+                    failed.store(true, Ordering::Relaxed);
+                    return None;
+                };
+                e
             }
         };
-        for (k, v) in e.train_residuals.iter().enumerate() {
+        Some((e.train_residuals, h))
+    });
+    let mut jac = DMatrix::<f64>::zeros(r0.len(), which.len());
+    for (c, col) in columns.into_iter().enumerate() {
+        let (r, h) = col?;
+        for (k, v) in r.iter().enumerate() {
             jac[(k, c)] = (v - r0[k]) / h;
         }
     }
@@ -84,7 +103,8 @@ pub struct ParamFit {
 
 /// Minimises χ²_train over the parameters `free` (others held), from `th0`. With
 /// `project_out` (an orthonormal basis Q), the objective is ‖(I − QQᵀ) r‖²: the residual after
-/// a linearised refit of the directions Q spans (the nominal parameters).
+/// a linearised refit of the directions Q spans (the nominal parameters). `fan` runs the
+/// Jacobian's columns.
 pub fn fit_params(
     problem: &Problem,
     spec: &ModelSpec,
@@ -92,6 +112,7 @@ pub fn fit_params(
     free: &[usize],
     opts: FitOptions,
     project_out: Option<&DMatrix<f64>>,
+    fan: &dyn Fan,
 ) -> Option<ParamFit> {
     let project = |r: DVector<f64>| match project_out {
         None => r,
@@ -124,7 +145,7 @@ pub fn fit_params(
     let jacobian_at = |x: &[f64], _: &DVector<f64>| {
         let b = best.borrow();
         let r0 = &b.as_ref()?.1.train_residuals;
-        let j = jacobian(problem, spec, &full(x), r0, free)?;
+        let j = jacobian(problem, spec, &full(x), r0, free, fan)?;
         Some(match project_out {
             None => j,
             Some(q) => &j - q * (q.transpose() * &j),
@@ -163,13 +184,15 @@ pub fn fit_model(
     spec: &ModelSpec,
     starts: &[Vec<f64>],
     opts: FitOptions,
+    fan: &dyn Fan,
 ) -> Option<Fitted> {
     let free: Vec<usize> = (0..spec.n_nonlinear()).collect();
+    // The starts are independent fits: a fan may run them side by side.
+    let fits = fan::map(fan, starts.len(), |k| {
+        fit_params(problem, spec, &starts[k], &free, opts, None, fan)
+    });
     let mut best: Option<Fitted> = None;
-    for s in starts {
-        let Some(f) = fit_params(problem, spec, s, &free, opts, None) else {
-            continue;
-        };
+    for f in fits.into_iter().flatten() {
         if best
             .as_ref()
             .is_some_and(|b| b.eval.chi2_train <= f.eval.chi2_train)
@@ -203,6 +226,7 @@ pub fn screen(
     spec: &ModelSpec,
     starts: &[Vec<f64>],
     q: &DMatrix<f64>,
+    fan: &dyn Fan,
 ) -> Option<(f64, Vec<f64>)> {
     let n_nom = spec.n_nominal();
     let free: Vec<usize> = (n_nom..spec.n_nonlinear()).collect();
@@ -210,24 +234,31 @@ pub fn screen(
         max_iterations: 10,
         max_step: 1.5,
     };
-    let mut best: Option<(f64, Vec<f64>)> = None;
-    for s in starts {
-        let r = if free.is_empty() {
+    let projected = |r: &[f64]| {
+        let rv = DVector::from_column_slice(r);
+        let c = q.transpose() * &rv;
+        (rv - q * c).norm_squared()
+    };
+    let fits: Vec<Option<(f64, Vec<f64>)>> = if free.is_empty() {
+        // Nothing to fit (one start, in practice): an evaluation per start, and none at all
+        // when one fails.
+        let mut v = vec![];
+        for s in starts {
             let e = problem.evaluate(spec, s)?;
-            let rv = DVector::from_column_slice(&e.train_residuals);
-            let c = q.transpose() * &rv;
-            Some(((rv - q * c).norm_squared(), s.clone()))
-        } else {
-            fit_params(problem, spec, s, &free, opts, Some(q)).map(|f| {
-                let rv = DVector::from_column_slice(&f.eval.train_residuals);
-                let c = q.transpose() * &rv;
-                ((rv - q * c).norm_squared(), f.theta)
-            })
-        };
-        if let Some((c, th)) = r {
-            if best.as_ref().is_none_or(|b| c < b.0) {
-                best = Some((c, th));
-            }
+            v.push(Some((projected(&e.train_residuals), s.clone())));
+        }
+        v
+    } else {
+        // The starts are independent fits: a fan may run them side by side.
+        fan::map(fan, starts.len(), |k| {
+            fit_params(problem, spec, &starts[k], &free, opts, Some(q), fan)
+                .map(|f| (projected(&f.eval.train_residuals), f.theta))
+        })
+    };
+    let mut best: Option<(f64, Vec<f64>)> = None;
+    for (c, th) in fits.into_iter().flatten() {
+        if best.as_ref().is_none_or(|b| c < b.0) {
+            best = Some((c, th));
         }
     }
     best
@@ -236,4 +267,96 @@ pub fn screen(
 /// An orthonormal basis of the columns of `j` (thin QR), for [`screen`].
 pub fn orthonormal_basis(j: &DMatrix<f64>) -> DMatrix<f64> {
     j.clone().qr().q()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::corpus::{nominal_twin, protocol_drive, simulate, FS_HZ};
+    use super::super::fan::{tests::Reversed, Serial};
+    use super::super::model::{Effect, ModelSpec, Problem};
+    use super::*;
+
+    /// The first 1.5 s of a corpus-like record (rest, approach, one multisine period) of a
+    /// nominal twin with a channel delay.
+    fn problem() -> (Problem, Vec<f64>) {
+        let mut twin = nominal_twin(7);
+        twin.detector.delay_s = 2.0 / FS_HZ;
+        let (drive, _) = protocol_drive(FS_HZ);
+        let drive = drive[..6000].to_vec();
+        let rec = simulate(&twin, &drive, FS_HZ, None);
+        let n = drive.len();
+        let (train, held) = (0..n).partition(|k| (k / 100) % 3 != 1);
+        let problem = Problem {
+            fs_hz: FS_HZ,
+            drive,
+            deflection_v: rec.deflection_v,
+            t_s: rec.time_s,
+            spring_constant_n_per_m: twin.cantilever.spring_constant_n_per_m,
+            sensitivity_nm_per_v: twin.cantilever.deflection_sensitivity_nm_per_v,
+            declared_tip: twin.tip,
+            poisson_ratio: twin.sample.poisson_ratio,
+            whitening: vec![1.0, -0.2],
+            sigma_w_v: twin.detector.white_noise_v,
+            train,
+            held,
+            mains_hz: 50.0,
+            floor_from_hz: 1.0,
+            fixed_columns: Default::default(),
+            simulations: Default::default(),
+        };
+        // A start some way off: gain, contact point and material all wrong by a few %.
+        let mut material = twin.sample.material.clone();
+        material.j0_per_pa *= 1.1;
+        let th0 = problem.nominal_theta(
+            twin.actuator.gain_nm_per_v * 1.03,
+            twin.sample.contact_point_nm + 2.0,
+            &material,
+        );
+        (problem, th0)
+    }
+
+    /// Fits with every parameter free, and screens from the result, through `fan`.
+    fn run(fan: &dyn Fan) -> (Fitted, (f64, Vec<f64>), usize) {
+        let (problem, th0) = problem();
+        let spec = ModelSpec::with(&[Effect::ChannelDelay, Effect::ThermalDrift]);
+        let mut start = th0.clone();
+        start.push((1.0 / FS_HZ).ln());
+        let opts = FitOptions {
+            max_iterations: 6,
+            max_step: 1.0,
+        };
+        let fitted = fit_model(&problem, &spec, &[start], opts, fan).expect("fit");
+        let nominal = fit_model(&problem, &ModelSpec::nominal(), &[th0], opts, fan).expect("fit");
+        let q = orthonormal_basis(&nominal.jacobian);
+        let mut st = nominal.theta.clone();
+        st.push((0.5 / FS_HZ).ln());
+        let screened = screen(
+            &problem,
+            &ModelSpec::with(&[Effect::ChannelDelay]),
+            &[st],
+            &q,
+            fan,
+        )
+        .expect("screen");
+        (fitted, screened, problem.simulations())
+    }
+
+    #[test]
+    fn the_fit_does_not_depend_on_the_order_the_fan_runs_jobs_in() {
+        let (a, sa, na) = run(&Serial);
+        let (b, sb, nb) = run(&Reversed);
+        // Bit for bit: every Jacobian column is its own simulation, put back in its place.
+        assert_eq!(a.theta, b.theta);
+        assert_eq!(a.eval.chi2_train.to_bits(), b.eval.chi2_train.to_bits());
+        assert_eq!(a.eval.chi2_held.to_bits(), b.eval.chi2_held.to_bits());
+        assert_eq!(a.eval.linear, b.eval.linear);
+        assert_eq!(a.sd, b.sd);
+        assert_eq!(a.jacobian, b.jacobian);
+        assert_eq!(sa.0.to_bits(), sb.0.to_bits());
+        assert_eq!(sa.1, sb.1);
+        assert_eq!(na, nb);
+        // And the fit did something: the delay moved, the χ² is finite.
+        assert!(a.eval.chi2_train.is_finite());
+        assert!(na > 3 * a.theta.len());
+    }
 }

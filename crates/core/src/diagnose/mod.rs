@@ -28,6 +28,7 @@
 
 pub mod bench;
 pub mod corpus;
+pub mod fan;
 pub mod fit;
 pub mod locate;
 pub mod model;
@@ -37,6 +38,7 @@ use crate::analysis;
 use crate::prony::PronySeries;
 use crate::recording::{Drive, Recording};
 use crate::twin::TipConfig;
+use fan::Fan;
 use fit::{fit_model, orthonormal_basis, screen, FitOptions, Fitted};
 use locate::{Location, Phase};
 use model::{Effect, ModelSpec, Problem, NOMINAL_TERMS};
@@ -302,8 +304,18 @@ fn first_material(
     )
 }
 
-/// Diagnoses a recording.
+/// Diagnoses a recording, one simulation after the other.
 pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, DiagnoseError> {
+    diagnose_with(rec, opts, &fan::Serial)
+}
+
+/// Diagnoses a recording, handing independent simulations (Jacobian columns, start grids) to
+/// `fan`, which may run them side by side. The diagnosis is the same whatever the fan.
+pub fn diagnose_with(
+    rec: &Recording,
+    opts: &DiagnoseOptions,
+    fan: &dyn Fan,
+) -> Result<Diagnosis, DiagnoseError> {
     let n = rec.len();
     if n < 1000 {
         return Err(DiagnoseError::TooShort(n));
@@ -374,7 +386,7 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
         mains_hz: pick_mains(&y[..free_end.max(2)], fs),
         floor_from_hz: 3.0 * fs / noise.samples.max(1) as f64,
         fixed_columns: Default::default(),
-        simulations: std::cell::Cell::new(0),
+        simulations: Default::default(),
     };
 
     // 1. Nominal twin.
@@ -413,12 +425,12 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
     // The offline fitter's material is usually the right basin: other starts are tried only
     // when the fit from it stays well above the floor.
     let fit_nominal = |problem: &Problem| -> Result<Fitted, DiagnoseError> {
-        let first = fit_model(problem, &nominal, &starts[..1], nominal_opts);
+        let first = fit_model(problem, &nominal, &starts[..1], nominal_opts, fan);
         let at_floor = |f: &Fitted| f.eval.chi2_train < 1.2 * problem.train.len() as f64;
         Ok(match first {
             Some(f) if at_floor(&f) => f,
             first => {
-                let rest = fit_model(problem, &nominal, &starts[1..], nominal_opts);
+                let rest = fit_model(problem, &nominal, &starts[1..], nominal_opts, fan);
                 match (first, rest) {
                     (Some(a), Some(b)) if a.eval.chi2_train <= b.eval.chi2_train => a,
                     (_, Some(b)) => b,
@@ -446,7 +458,7 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
     } else {
         Weighting::Equal
     };
-    let sims_nominal = problem.simulations.get();
+    let sims_nominal = problem.simulations();
 
     // 2. Locate, on the nominal residual.
     let white_nom = whitened(&problem, &nom);
@@ -463,16 +475,18 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
     // 3. Screen every catalog effect.
     let q = orthonormal_basis(&nom.jacobian);
     let ctx = StartContext::new(&problem, &nom, &white_nom, base, &phases);
-    let mut screened: Vec<(Effect, f64, Vec<f64>)> = Effect::ALL
-        .iter()
-        .filter_map(|&e| {
-            let spec = ModelSpec::with(&[e]);
-            let st = ctx.starts(&problem, &nom, e);
-            screen(&problem, &spec, &st, &q).map(|(c, th)| (e, nom.eval.chi2_train - c, th))
-        })
-        .collect();
+    // The candidates are independent of one another: a fan may screen them side by side.
+    let mut screened: Vec<(Effect, f64, Vec<f64>)> = fan::map(fan, Effect::ALL.len(), |k| {
+        let e = Effect::ALL[k];
+        let spec = ModelSpec::with(&[e]);
+        let st = ctx.starts(&problem, &nom, e, fan);
+        screen(&problem, &spec, &st, &q, fan).map(|(c, th)| (e, nom.eval.chi2_train - c, th))
+    })
+    .into_iter()
+    .flatten()
+    .collect();
     screened.sort_by(|a, b| b.1.total_cmp(&a.1));
-    let sims_screen = problem.simulations.get();
+    let sims_screen = problem.simulations();
 
     // 4. Full refits of the strongest, then pairs.
     let th = opts.thresholds;
@@ -523,33 +537,36 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
             }
         }
     }
-    for (e, _, th_s) in to_refit.iter().map(|&i| &screened[i]) {
-        let spec = ModelSpec::with(&[*e]);
-        let mut st = vec![th_s.clone()];
-        st.extend(ctx.starts(&problem, &nom, *e).into_iter().take(1));
-        if distorted {
-            // A nominal fit far above the floor has bent its parameters to mimic what is
-            // missing; start the candidate from the undistorted first estimate as well.
-            let mut first = nom.clone();
-            first.theta = starts[0].clone();
-            st.extend(ctx.starts(&problem, &first, *e).into_iter().take(1));
-        }
-        // Each form of the candidate (adhesion with and without a neck) is fitted; the one
-        // with the lower BIC stands for the candidate.
-        let bic =
-            |f: &Fitted| f.eval.chi2_train + model::n_params(&problem, &f.spec) as f64 * n_tr.ln();
-        let best = spec
-            .variants()
-            .into_iter()
-            .filter_map(|v| {
-                let st: Vec<Vec<f64>> = st.iter().map(|t| ctx.extend(&problem, &v, t)).collect();
-                fit_model(&problem, &v, &st, refit_opts)
-            })
-            .min_by(|a, b| bic(a).total_cmp(&bic(b)));
-        if let Some(f) = best {
-            singles.push((*e, f));
-        }
-    }
+    // The refits are independent too. Each form of a candidate (adhesion with and without a
+    // neck) is fitted; the one with the lower BIC stands for the candidate.
+    let bic =
+        |f: &Fitted| f.eval.chi2_train + model::n_params(&problem, &f.spec) as f64 * n_tr.ln();
+    singles.extend(
+        fan::map(fan, to_refit.len(), |j| {
+            let (e, _, th_s) = &screened[to_refit[j]];
+            let spec = ModelSpec::with(&[*e]);
+            let mut st = vec![th_s.clone()];
+            st.extend(ctx.starts(&problem, &nom, *e, fan).into_iter().take(1));
+            if distorted {
+                // A nominal fit far above the floor has bent its parameters to mimic what is
+                // missing; start the candidate from the undistorted first estimate as well.
+                let mut first = nom.clone();
+                first.theta = starts[0].clone();
+                st.extend(ctx.starts(&problem, &first, *e, fan).into_iter().take(1));
+            }
+            spec.variants()
+                .into_iter()
+                .filter_map(|v| {
+                    let st: Vec<Vec<f64>> =
+                        st.iter().map(|t| ctx.extend(&problem, &v, t)).collect();
+                    fit_model(&problem, &v, &st, refit_opts, fan)
+                })
+                .min_by(|a, b| bic(a).total_cmp(&bic(b)))
+                .map(|f| (*e, f))
+        })
+        .into_iter()
+        .flatten(),
+    );
     let judge = |base: &Fitted, cand: &Fitted| -> (bool, f64, f64, f64) {
         let k = (model::n_params(&problem, &cand.spec) as f64
             - model::n_params(&problem, &base.spec) as f64)
@@ -605,7 +622,7 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
         });
     }
     sig_singles.sort_by(|a, b| b.2.total_cmp(&a.2));
-    let sims_refit = problem.simulations.get();
+    let sims_refit = problem.simulations();
     let mut chosen: Option<Fitted> = sig_singles.first().map(|s| s.1.clone());
     let mut chosen_effects: Vec<Effect> =
         sig_singles.first().map(|s| vec![s.0]).unwrap_or_default();
@@ -618,16 +635,19 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
             .filter(|s| leaves_structure(&s.1))
             .cloned()
         {
-            let mut best_pair: Option<(Effect, Fitted, f64)> = None;
-            for (b, fb) in singles.iter().filter(|(b, _)| *b != a) {
+            let others: Vec<&(Effect, Fitted)> = singles.iter().filter(|(b, _)| *b != a).collect();
+            let pairs = fan::map(fan, others.len(), |j| {
+                let (b, fb) = others[j];
                 let mut spec = ModelSpec::with(&[a, *b]);
                 spec.adhesion_neck = fa.spec.adhesion_neck || fb.spec.adhesion_neck;
                 let start = combine(&spec, &fa, fb);
-                if let Some(fp) = fit_model(&problem, &spec, &[start], refit_opts) {
-                    let (ok, _, d_ho, _) = judge(&fa, &fp);
-                    if ok && best_pair.as_ref().is_none_or(|p| d_ho > p.2) {
-                        best_pair = Some((*b, fp, d_ho));
-                    }
+                fit_model(&problem, &spec, &[start], refit_opts, fan).map(|fp| (*b, fp))
+            });
+            let mut best_pair: Option<(Effect, Fitted, f64)> = None;
+            for (b, fp) in pairs.into_iter().flatten() {
+                let (ok, _, d_ho, _) = judge(&fa, &fp);
+                if ok && best_pair.as_ref().is_none_or(|p| d_ho > p.2) {
+                    best_pair = Some((b, fp, d_ho));
                 }
             }
             if let Some((b, fp, _)) = best_pair {
@@ -641,7 +661,7 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
             "simulations: nominal {sims_nominal}, screening {}, refits {}, pairs {}",
             sims_screen - sims_nominal,
             sims_refit - sims_screen,
-            problem.simulations.get() - sims_refit
+            problem.simulations() - sims_refit
         );
     }
     // Rank: the chosen model's effects first (marked significant), everything else after.
@@ -705,7 +725,7 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, Di
         t_s,
         whitened_before: white_nom,
         whitened_after: white_final,
-        simulations: problem.simulations.get(),
+        simulations: problem.simulations(),
         base_position,
         weighting,
     })
@@ -945,8 +965,9 @@ impl StartContext {
         t
     }
 
-    /// Start vectors (full θ) of the single-effect model of `e`, from the nominal fit.
-    fn starts(&self, problem: &Problem, nom: &Fitted, e: Effect) -> Vec<Vec<f64>> {
+    /// Start vectors (full θ) of the single-effect model of `e`, from the nominal fit. `fan`
+    /// runs the simulations of a start grid.
+    fn starts(&self, problem: &Problem, nom: &Fitted, e: Effect, fan: &dyn Fan) -> Vec<Vec<f64>> {
         let fs = problem.fs_hz;
         let base = nom.theta.clone();
         let with = |extra: &[f64]| {
@@ -981,12 +1002,19 @@ impl StartContext {
                 let spec = ModelSpec::with(&[Effect::InstrumentResonance]);
                 let (f_lo, f_hi) = (50.0f64, 0.475 * fs);
                 let n = 15;
-                let mut grid: Vec<(f64, Vec<f64>)> = (0..n)
+                let points: Vec<Vec<f64>> = (0..n)
                     .flat_map(|i| {
                         let f = f_lo * (f_hi / f_lo).powf(i as f64 / (n - 1) as f64);
                         [1.5f64, 5.0].map(|q| with(&[f.ln(), q.ln()]))
                     })
-                    .filter_map(|t| Some((problem.evaluate(&spec, &t)?.chi2_train, t)))
+                    .collect();
+                let chi2 = fan::map(fan, points.len(), |i| {
+                    problem.evaluate(&spec, &points[i]).map(|e| e.chi2_train)
+                });
+                let mut grid: Vec<(f64, Vec<f64>)> = chi2
+                    .into_iter()
+                    .zip(points)
+                    .filter_map(|(c, t)| Some((c?, t)))
                     .collect();
                 grid.sort_by(|a, b| a.0.total_cmp(&b.0));
                 let mut out: Vec<Vec<f64>> = grid.into_iter().take(1).map(|g| g.1).collect();

@@ -264,7 +264,10 @@ impl ModelSpec {
 }
 
 /// Everything about the recording that a model evaluation needs, fixed for a diagnosis.
-#[derive(Debug, Clone)]
+///
+/// Evaluations only read it (the simulation count and the cached columns are atomic), so
+/// independent evaluations may run on several threads at once (see [`super::fan`]).
+#[derive(Debug)]
 pub struct Problem {
     pub fs_hz: f64,
     /// Drive, in the recording's unit (V, or nm with a gain of 1 nm/nm).
@@ -288,9 +291,9 @@ pub struct Problem {
     /// Lowest frequency at which the noise floor was measured, Hz.
     pub floor_from_hz: f64,
     /// Offset, time and mains columns, raw and whitened (see `fixed_columns`); leave empty.
-    pub fixed_columns: std::cell::OnceCell<[(Vec<f64>, Vec<f64>); 4]>,
-    /// Twin simulations run so far (the cost of a diagnosis).
-    pub simulations: std::cell::Cell<usize>,
+    pub fixed_columns: std::sync::OnceLock<[(Vec<f64>, Vec<f64>); 4]>,
+    /// Twin simulations run so far (the cost of a diagnosis); leave at zero.
+    pub simulations: std::sync::atomic::AtomicUsize,
 }
 
 /// A model's simulated, noise-free deflection and the twin's truth along it.
@@ -471,7 +474,8 @@ impl Problem {
         if !cfg.validate("").is_empty() {
             return None;
         }
-        self.simulations.set(self.simulations.get() + 1);
+        self.simulations
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         let mut twin = Twin::new(&cfg, self.fs_hz);
         twin.settle(self.drive[0]);
         let n = self.drive.len();
@@ -573,6 +577,11 @@ impl Problem {
                 s
             })
             .collect()
+    }
+
+    /// Twin simulations run so far.
+    pub fn simulations(&self) -> usize {
+        self.simulations.load(std::sync::atomic::Ordering::Relaxed)
     }
 
     /// Evaluates θ: simulation, closed-form coefficients on the train samples, χ² on both sets.

@@ -2,6 +2,7 @@
 //! the nominal twin, which physics was left out, and the proof on the concealed corpus.
 
 use crate::cli::fit::load_recording;
+use crate::fan::{cores, Threads};
 use crate::output::print_json;
 use crate::plot::{canvas, draw_legend, err, legend_line, padded_range};
 use anyhow::Context;
@@ -12,7 +13,7 @@ use std::path::{Path, PathBuf};
 use viscoprobe_core::diagnose::bench::{score, CaseOutcome, Score};
 use viscoprobe_core::diagnose::corpus::{concealed_corpus, CorpusCase};
 use viscoprobe_core::diagnose::{
-    diagnose, BasePosition, DiagnoseOptions, Diagnosis, FitSummary, Weighting,
+    diagnose_with, BasePosition, DiagnoseOptions, Diagnosis, FitSummary, Weighting,
 };
 
 #[derive(Debug, Args)]
@@ -28,6 +29,10 @@ pub struct DiagnoseArgs {
     /// Tip radius for files that do not record it (JPK), nm.
     #[arg(long, default_value_t = 5000.0)]
     pub tip_radius_nm: f64,
+    /// Threads for the twin simulations (default: every core). The report is the same
+    /// whatever the number.
+    #[arg(long)]
+    pub threads: Option<usize>,
 }
 
 #[derive(Debug, Args)]
@@ -35,7 +40,8 @@ pub struct BenchArgs {
     /// Corpus seeds, comma-separated (each seed gives every effect, masked cases, pairs, nulls).
     #[arg(long, default_value = "1,2,3")]
     pub seeds: String,
-    /// Worker threads.
+    /// Cases diagnosed at once. The cores left over are shared among them (each case's
+    /// simulations run on `cores / threads` threads; one when the cases fill the cores).
     #[arg(long, default_value_t = 2)]
     pub threads: usize,
     /// Only cases whose name contains this.
@@ -130,9 +136,18 @@ pub fn run(args: DiagnoseArgs) -> anyhow::Result<()> {
             rec.sample_rate_hz
         );
     }
-    let d = diagnose(&rec, &DiagnoseOptions::default())
+    let fan = args.threads.map_or_else(Threads::all_cores, Threads::new);
+    let virtual_start = crate::fan::virtual_now();
+    let d = diagnose_with(&rec, &DiagnoseOptions::default(), &fan)
         .with_context(|| format!("diagnosing {}", args.recording.display()))?;
     let seconds = started.elapsed().as_secs_f64();
+    if std::env::var_os("VP_DIAG_DEBUG").is_some() {
+        eprintln!(
+            "fan: {:.1} s on {} threads of an idle machine ({seconds:.1} s here)",
+            crate::fan::virtual_now() - virtual_start,
+            fan.threads(),
+        );
+    }
     if let Some(dir) = &args.plot {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         let written = write_plots(dir, &d)?;
@@ -479,31 +494,41 @@ fn fit_plot(path: &Path, d: &Diagnosis) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Runs the engine over corpus cases on `threads` workers (the core is single-threaded by
-/// design; parallelism belongs here). `progress` is called after each case.
+/// Runs the engine over corpus cases, `threads` at once (the core starts no threads;
+/// parallelism belongs here). Cases are the coarser grain, so they get the cores first; the
+/// cores left over go to each case's simulations (see [`Threads`]), so that the threads in
+/// use never outnumber the cores. `progress` is called after each case.
 pub fn run_corpus(
     cases: &[CorpusCase],
     threads: usize,
     progress: impl Fn(&CaseOutcome, usize, usize) + Sync,
 ) -> anyhow::Result<Vec<CaseOutcome>> {
+    let threads = threads.clamp(1, cases.len().max(1));
+    // Each case its own fan: a case's helper threads are not the others' to take.
+    let per_case = cores() / threads;
     let next = std::sync::atomic::AtomicUsize::new(0);
     let done = std::sync::atomic::AtomicUsize::new(0);
     let out = std::sync::Mutex::new(Vec::<(usize, anyhow::Result<CaseOutcome>)>::new());
     std::thread::scope(|s| {
-        for _ in 0..threads.max(1) {
-            s.spawn(|| loop {
-                let i = next.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
-                let Some(c) = cases.get(i) else { break };
-                let t0 = std::time::Instant::now();
-                let r = diagnose(&c.recording, &DiagnoseOptions::default())
-                    .map(|d| CaseOutcome::new(&c.name, &c.effects, &d, t0.elapsed().as_secs_f64()))
-                    .with_context(|| format!("case {}", c.name));
-                if let Ok(o) = &r {
-                    let k = done.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1;
-                    progress(o, k, cases.len());
-                }
-                if let Ok(mut g) = out.lock() {
-                    g.push((i, r));
+        for _ in 0..threads {
+            s.spawn(|| {
+                let fan = Threads::new(per_case);
+                loop {
+                    let i = next.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+                    let Some(c) = cases.get(i) else { break };
+                    let t0 = std::time::Instant::now();
+                    let r = diagnose_with(&c.recording, &DiagnoseOptions::default(), &fan)
+                        .map(|d| {
+                            CaseOutcome::new(&c.name, &c.effects, &d, t0.elapsed().as_secs_f64())
+                        })
+                        .with_context(|| format!("case {}", c.name));
+                    if let Ok(o) = &r {
+                        let k = done.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1;
+                        progress(o, k, cases.len());
+                    }
+                    if let Ok(mut g) = out.lock() {
+                        g.push((i, r));
+                    }
                 }
             });
         }
