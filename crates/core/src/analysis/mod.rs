@@ -583,6 +583,14 @@ struct Fitted {
 
 type OrderFit = Result<Fitted, EstimateError>;
 
+/// What one pass of order selection found: every candidate, the chosen order's estimate (and
+/// its refinement), and the last failure.
+type Selection = (
+    Vec<OrderCandidate>,
+    Option<(Estimate, Option<Refined>)>,
+    Option<EstimateError>,
+);
+
 impl Fitted {
     fn plain((est, bic): (Estimate, f64)) -> Self {
         Self {
@@ -625,11 +633,7 @@ pub fn fit_recording_with(
     // One pass of order selection over `range` with `fit_order`.
     let select = |range: std::ops::Range<usize>,
                   fit_order: &dyn Fn(usize) -> OrderFit|
-     -> (
-        Vec<OrderCandidate>,
-        Option<(Estimate, Option<Refined>)>,
-        Option<EstimateError>,
-    ) {
+     -> Selection {
         let span_s = range.len() as f64 / fs;
         let mut candidates = Vec::new();
         type Slot = Option<(f64, (Estimate, Option<Refined>))>;
@@ -698,15 +702,37 @@ pub fn fit_recording_with(
         (candidates, chosen, last_err)
     };
 
-    let time_domain = |n: usize| -> Result<(Estimate, f64), EstimateError> {
+    let time_domain = |n: usize| -> OrderFit {
         let mut opts = TimeFitOptions::new(n);
         opts.sampling = sampling;
-        let est = fit_time_domain(u, y, fs, &opts)?;
         let scale2 = y.iter().map(|v| v * v).sum::<f64>() / len as f64;
-        let rss = est.diagnostics.cost * scale2;
         let nf = len as f64;
-        let p = (2 * n + 1) as f64;
-        Ok((est, nf * (rss / nf).max(1e-300).ln() + p * nf.ln()))
+        let bic = |cost: f64| {
+            let rss = cost * scale2;
+            nf * (rss / nf).max(1e-300).ln() + (2 * n + 1) as f64 * nf.ln()
+        };
+        match fit_time_domain(u, y, fs, &opts) {
+            Ok(est) => {
+                let b = bic(est.diagnostics.cost);
+                Ok(Fitted::plain((est, b)))
+            }
+            // An order too many still has a cost: it loses on BIC, not by failing.
+            Err(e @ EstimateError::Unidentified { .. }) => {
+                let EstimateError::Unidentified {
+                    cost, ref model, ..
+                } = e
+                else {
+                    unreachable!()
+                };
+                Ok(Fitted {
+                    model: model.clone(),
+                    bic: bic(cost),
+                    estimate: Err(e.clone()),
+                    refined: None,
+                })
+            }
+            Err(e) => Err(e),
+        }
     };
     // The deflection refinement, where the drive gives the actuator's position.
     let problem = if refine_deflection {
@@ -722,18 +748,11 @@ pub fn fit_recording_with(
     };
     // One order refined from `start`, intervals included.
     let refined = |prob: &Problem, start: &PronySeries| -> OrderFit {
-        let r = refine(prob, start, true).or_else(|e| match e {
-            EstimateError::IllConditioned { .. } => refine(prob, start, false).map(|mut r| {
-                r.estimate = None;
-                r
-            }),
-            e => Err(e),
-        })?;
-        let est = r.estimate.clone();
+        let r = refine(prob, start)?;
         Ok(Fitted {
             model: r.model.clone(),
             bic: r.bic(),
-            estimate: est.ok_or(EstimateError::IllConditioned { rcond: 0.0 }),
+            estimate: r.estimate.clone(),
             refined: Some(r),
         })
     };
@@ -863,9 +882,15 @@ pub fn fit_recording_with(
                     Some(prob) => select(0..len, &|n| {
                         // Each order refined from its first estimate; where that fails (an
                         // order too many), from the first estimate's own starts.
-                        match time_domain(n) {
-                            Ok((est, _)) => refined(prob, &est.model),
-                            Err(first) => {
+                        let first = time_domain(n);
+                        match first
+                            .as_ref()
+                            .map_err(Clone::clone)
+                            .map(|f| refined(prob, &f.model))
+                        {
+                            Ok(Ok(f)) => Ok(f),
+                            Ok(Err(e)) | Err(e) => {
+                                let first = first.err().unwrap_or(e);
                                 let mut opts = TimeFitOptions::new(n);
                                 opts.sampling = sampling;
                                 opts.starts = 2;
@@ -882,7 +907,7 @@ pub fn fit_recording_with(
                             }
                         }
                     }),
-                    None => select(0..len, &|n| time_domain(n).map(Fitted::plain)),
+                    None => select(0..len, &time_domain),
                 };
                 let Some(est) = chosen else {
                     return Err(FitError::Estimate(err.unwrap_or(EstimateError::NoStart)));

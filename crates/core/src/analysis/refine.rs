@@ -268,9 +268,9 @@ pub fn simulate_deflection(
 /// A refined fit.
 #[derive(Debug, Clone)]
 pub struct Refined {
-    /// The Prony estimate, intervals marginal over the contact position (and including the
-    /// baseline level's systematic term when `covariance` was asked for).
-    pub estimate: Option<Estimate>,
+    /// The Prony estimate, intervals marginal over the contact position and including the
+    /// calibration terms; or why the optimum has no intervals (an order too many).
+    pub estimate: Result<Estimate, EstimateError>,
     pub model: PronySeries,
     /// Fitted contact position, nm of drive, and its standard error.
     pub contact_nm: f64,
@@ -293,13 +293,9 @@ impl Refined {
     }
 }
 
-/// Refines `start` (any order) on `prob`. With `covariance` the intervals are formed (an
-/// ill-conditioned optimum is then an error); without, only the fit and its cost.
-pub fn refine(
-    prob: &Problem,
-    start: &PronySeries,
-    covariance: bool,
-) -> Result<Refined, EstimateError> {
+/// Refines `start` (any order) on `prob`. An optimum whose parameters the data cannot
+/// separate is still returned, with its cost, and the reason in place of the estimate.
+pub fn refine(prob: &Problem, start: &PronySeries) -> Result<Refined, EstimateError> {
     let n = start.order();
     let np = 2 * n + 2;
     let len = prob.z_nm.len();
@@ -364,7 +360,7 @@ pub fn refine(
     let rss = res.cost * prob.sigma_nm.powi(2);
     let residuals_nm: Vec<f64> = res.residuals.iter().map(|r| r * prob.sigma_nm).collect();
     let mut out = Refined {
-        estimate: None,
+        estimate: Err(EstimateError::NoStart),
         model,
         contact_nm,
         contact_sigma_nm: f64::NAN,
@@ -374,16 +370,17 @@ pub fn refine(
         iterations: res.iterations,
         converged: res.converged,
     };
-    if !covariance {
-        return Ok(out);
-    }
     let r = residuals(&p).ok_or(EstimateError::NoStart)?;
     let jac = jacobian(&p, &r).ok_or(EstimateError::NoStart)?;
     let jtj = jac.transpose() * &jac;
     let rcond = crate::linalg::scaled_rcond(&jtj);
     let dof = len - np;
     let s2 = res.cost / dof as f64;
-    let cov = spd_inverse(&jtj).ok_or(EstimateError::IllConditioned { rcond })? * s2;
+    let Some(cov) = spd_inverse(&jtj) else {
+        out.estimate = Err(EstimateError::IllConditioned { rcond });
+        return Ok(out);
+    };
+    let cov = cov * s2;
     out.contact_sigma_nm = cov[(np - 1, np - 1)].max(0.0).sqrt();
     let block = cov.view((0, 0), (np - 1, np - 1)).into_owned();
     let lag1 = (1..len).map(|t| r[t] * r[t - 1]).sum::<f64>() / res.cost.max(1e-300);
@@ -431,6 +428,6 @@ pub fn refine(
             );
         }
     }
-    out.estimate = Some(est);
+    out.estimate = Ok(est);
     Ok(out)
 }
