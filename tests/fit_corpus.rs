@@ -490,7 +490,6 @@ fn third_party_recordings_fit_the_same_way() {
 /// z-scores has a standard error of 0.22). Measured: 131 of 140 covered (93.6 %), mean
 /// z-scores -0.21 -0.48 +0.05 +0.31 +0.47 +0.28 -0.17, rms 0.94.
 #[test]
-#[ignore = "slow (20 fits, ~2 min): run when the estimator or the twin changes"]
 fn three_term_creep_intervals_over_seeds() {
     let (_, m) = materials().swap_remove(1);
     let truth = m.to_vec();
