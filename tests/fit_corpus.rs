@@ -28,7 +28,7 @@ use viscoprobe_core::twin::TipConfig;
 use viscoprobe_daemon::cli::simulate::write_atomic;
 use viscoprobe_daemon::config::SimConfigFile;
 use viscoprobe_daemon::simrun::{
-    drive_profile, simulate_recording, DriveProfile, DriveSource, Protocol,
+    drive_profile, sim_limits, simulate_recording, DriveProfile, DriveSource, Protocol,
 };
 
 const FS: f64 = 4000.0;
@@ -77,6 +77,11 @@ fn config(material: &PronySeries, tip: Option<TipConfig>) -> SimConfigFile {
     let (mut cfg, _) = SimConfigFile::load(&root().join("config/sim-pdms.toml")).unwrap();
     cfg.instrument.sample_rate_hz = FS;
     cfg.instrument.block_len = 400;
+    // 2 µm of travel over ±10 V: the softest gel under 8 nN indents ~0.6 µm under the
+    // sphere and ~1.2 µm under the cone, which with the lever's deflection and the 100 nm
+    // approach is beyond the 0.5 µm of the 50 nm/V default (the safety layer then clips the
+    // drive at 10 V, and a "creep" or "multisine" record is a hold at the clip).
+    cfg.twin.actuator.gain_nm_per_v = 200.0;
     cfg.twin.sample.material = material.clone();
     cfg.twin.sample.name = Some("soft gel".into());
     if let Some(t) = tip {
@@ -207,6 +212,14 @@ fn drive(cfg: &SimConfigFile, exc: Excitation) -> DriveProfile {
 /// the truth columns stripped.
 fn recording(cfg: &SimConfigFile, exc: Excitation, dir: &Path, stem: &str) -> Recording {
     let profile = drive(cfg, exc);
+    let limits = sim_limits(cfg);
+    let peak = profile.drive_v.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+    assert!(
+        peak < 0.95 * limits.max_drive_v,
+        "{stem}: the drive reaches {peak:.3} V, at the {} V clip: the excitation would not be \
+         the one designed",
+        limits.max_drive_v
+    );
     let rec = simulate_recording(cfg, &profile, |_, _, _| {}).unwrap();
     let (csv, toml) = (
         dir.join(format!("{stem}.csv")),
@@ -288,7 +301,10 @@ fn check(label: &str, fit: &RecordingFit, truth: &PronySeries) -> Result<String,
     let bic: Vec<String> = fit
         .candidates
         .iter()
-        .map(|c| format!("{}:{:.1}", c.terms, c.bic))
+        .map(|c| match &c.rejected {
+            Some(why) => format!("{}:{:.1} ({why})", c.terms, c.bic),
+            None => format!("{}:{:.1}", c.terms, c.bic),
+        })
         .collect();
     let head = format!(
         "{label:<34} {:<24} order {} (BIC {})",
@@ -300,6 +316,13 @@ fn check(label: &str, fit: &RecordingFit, truth: &PronySeries) -> Result<String,
         return Err(format!("{head}: picked order {}", est.model.order()));
     }
     let (mut worst, mut covered, mut fails) = (0.0f64, 0, Vec::new());
+    // The widest interval, as a relative half-width: covering is only worth as much as this.
+    let widest = est
+        .ci95
+        .iter()
+        .zip(est.values())
+        .map(|([lo, hi], v)| 50.0 * (hi - lo) / v)
+        .fold(0.0f64, f64::max);
     for (i, (w, e)) in truth.to_vec().iter().zip(est.values()).enumerate() {
         let rel = 100.0 * (e - w) / w;
         worst = worst.max(rel.abs());
@@ -320,11 +343,12 @@ fn check(label: &str, fit: &RecordingFit, truth: &PronySeries) -> Result<String,
         }
     }
     let line = format!(
-        "{head}: max |error| {worst:.3} %, CI covers {covered}/{}, NRMSE {:.4}, Ljung-Box Q {:.1}",
+        "{head}: max |error| {worst:.3} %, CI covers {covered}/{} (widest ±{widest:.2} %), NRMSE {:.4}, Ljung-Box Q {:.1}",
         truth.n_params(),
         fit.nrmse,
         fit.whiteness.ljung_box_q
     );
+    let line = format!("{line}\n    notes: {}", fit.notes.join(" | "));
     if fails.is_empty() {
         Ok(line)
     } else {
@@ -368,19 +392,16 @@ fn twin_case(material: usize, exc: Excitation) {
 }
 
 #[test]
-#[ignore = "issue 8 open: J0 comes out 0.07 % high with the lower edge of its 95 % interval at the truth (1.0000e-4); the other four parameters are covered"]
 fn two_term_multisine() {
     twin_case(0, Excitation::Multisine);
 }
 
 #[test]
-#[ignore = "issue 8 open: J2 +0.2 %, outside its 95 % interval: errors in variables: the detector noise enters both u (force) and y (indentation), and the output-error fit biases the fastest term"]
 fn two_term_creep() {
     twin_case(0, Excitation::Creep);
 }
 
 #[test]
-#[ignore = "issue 8 open: J2 +0.2 %, outside its 95 % interval: errors in variables: the detector noise enters both u (force) and y (indentation), and the output-error fit biases the fastest term"]
 fn two_term_relaxation() {
     twin_case(0, Excitation::Relaxation);
 }
@@ -391,30 +412,34 @@ fn three_term_multisine() {
 }
 
 #[test]
+#[ignore = "measured: tau3 6.053e-3 (+0.88 %), 95 % interval [6.0046e-3, 6.1015e-3] just above the truth; \
+            seeds 2-21 of the same case give tau3 z-scores of mean -0.2 and rms 0.9, and 9 of \
+            all 140 intervals missing (95 % marginal intervals on 7 parameters leave one out in \
+            5 of the 20 records): no bias; the twin's seed-1 noise, shared by creep and \
+            relaxation, lands tau3 2.1 sigma high"]
 fn three_term_creep() {
     twin_case(1, Excitation::Creep);
 }
 
 #[test]
-#[ignore = "issue 8 open: J3 +0.5 %, outside its 95 % interval: errors in variables: the detector noise enters both u (force) and y (indentation), and the output-error fit biases the fastest term"]
+#[ignore = "measured: tau3 6.058e-3 (+0.97 %), 95 % interval [6.0015e-3, 6.1157e-3] just above the truth; \
+            seeds 2-7 of the same case give tau3 z-scores +1.3 +0.7 +0.3 -1.4 -1.2 +0.8 (no bias); \
+            the twin's seed-1 noise, shared with the creep case, lands tau3 2.1 sigma high there too"]
 fn three_term_relaxation() {
     twin_case(1, Excitation::Relaxation);
 }
 
 #[test]
-#[ignore = "issue 8 open: the 4-term multisine drive is not detected as periodic (analysis::periodic), so it falls back to the time domain and tau4 is 25 % off"]
 fn four_term_multisine() {
     twin_case(2, Excitation::Multisine);
 }
 
 #[test]
-#[ignore = "issue 8 open: tau4 -6 %, J3 +3 % (5σ): errors in variables: the detector noise enters both u (force) and y (indentation), and the output-error fit biases the fastest term (with the noise-free force as u the same data give tau4 within 1 %)"]
 fn four_term_creep() {
     twin_case(2, Excitation::Creep);
 }
 
 #[test]
-#[ignore = "issue 8 open: tau4 -6 %, J3 +3 % (5σ): errors in variables: the detector noise enters both u (force) and y (indentation), and the output-error fit biases the fastest term (with the noise-free force as u the same data give tau4 within 1 %)"]
 fn four_term_relaxation() {
     twin_case(2, Excitation::Relaxation);
 }
@@ -422,9 +447,6 @@ fn four_term_relaxation() {
 /// Required columns only, `time_s` from 12.5 s, no reference channel, no `[notes]`/`[truth]`:
 /// a multisine with `drive_v` on a sphere, and a ramp-and-hold with `drive_nm` on a cone.
 #[test]
-#[ignore = "issue 8 open: with the indentation taken from the drive, the contact offset (the \
-            drive at the detected contact sample, or the 1-term contact search on a slow rise) \
-            is not fitted: J0 +0.2 % (cone creep) and -2 % (sphere multisine), intervals miss"]
 fn third_party_recordings_fit_the_same_way() {
     let dir = tmp("third-party");
     let mats = materials();
@@ -460,4 +482,45 @@ fn third_party_recordings_fit_the_same_way() {
     }
     let _ = std::fs::remove_dir_all(&dir);
     assert!(failures.is_empty(), "\n{}", failures.join("\n"));
+}
+
+/// Are the intervals honest? One case over 20 more seeds of the twin's noise: the 95 %
+/// intervals must cover at least 90 % of the time over all parameters, and no parameter's
+/// mean error may sit more than 0.75 of its standard error from zero (the mean of 20
+/// z-scores has a standard error of 0.22). Measured: 131 of 140 covered (93.6 %), mean
+/// z-scores -0.21 -0.48 +0.05 +0.31 +0.47 +0.28 -0.17, rms 0.94.
+#[test]
+fn three_term_creep_intervals_over_seeds() {
+    let (_, m) = materials().swap_remove(1);
+    let truth = m.to_vec();
+    let (mut covered, mut total) = (0, 0);
+    let mut zsum = vec![0.0; truth.len()];
+    let seeds = 2..22u64;
+    let runs = (seeds.end - seeds.start) as f64;
+    for seed in seeds {
+        let dir = tmp(&format!("seed{seed}"));
+        let mut cfg = config(&m, None);
+        cfg.twin.seed = seed;
+        let rec = recording(&cfg, Excitation::Creep, &dir, "rec");
+        let _ = std::fs::remove_dir_all(&dir);
+        let est = fit_recording(&rec, Terms::Fixed(3)).unwrap().estimate;
+        let z: Vec<f64> = truth
+            .iter()
+            .zip(est.values())
+            .zip(&est.std)
+            .map(|((w, e), s)| (e - w) / s)
+            .collect();
+        for (i, w) in truth.iter().enumerate() {
+            let [lo, hi] = est.ci95[i];
+            covered += usize::from(lo <= *w && *w <= hi);
+            total += 1;
+            zsum[i] += z[i];
+        }
+        let zs: Vec<String> = z.iter().map(|v| format!("{v:+.2}")).collect();
+        eprintln!("seed {seed}: z = {}", zs.join(" "));
+    }
+    let mean: Vec<f64> = zsum.iter().map(|s| s / runs).collect();
+    eprintln!("covered {covered}/{total}, mean z {mean:.2?}");
+    assert!(covered as f64 >= 0.9 * total as f64, "{covered}/{total}");
+    assert!(mean.iter().all(|z| z.abs() < 0.75), "{mean:?}");
 }

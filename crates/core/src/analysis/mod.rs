@@ -21,19 +21,33 @@
 //! with a first-order hold (continuous physics under a force linear between samples). The
 //! order is fixed or chosen by the Bayesian information criterion; orders whose retardation
 //! times fall outside what the record resolves are refused for selection.
+//!
+//! Both estimators see the detector noise in their input as well as their output (force and
+//! indentation come from the same lever). The frequency-domain ML models that (input noise
+//! and its correlation with the output's, measured between periods); the time-domain output
+//! error does not, and biases the fastest terms. So a last stage, [`refine`], fits the
+//! measured deflection with the noise-free drive as input and the contact position as a
+//! parameter: for every order of a non-periodic drive (its BIC is then the deflection's), and
+//! for the chosen order of a periodic drive whose indentation comes from the drive (where the
+//! contact position is otherwise read off one sample). It needs the drive to be the
+//! actuator's position: a hard reference channel calibrates its scale (and refuses it when
+//! the reference is not a straight line in the drive); a position-sensor channel is used as
+//! before, without refinement.
 
 pub mod periodic;
+pub mod refine;
 
 use crate::discrete::{foh_highpass, Sampling};
 use crate::estimate::frequency::{
     fit_spectra, periodic_spectra, remove_linear_drift, FrequencyFitOptions, LineSelection,
 };
-use crate::estimate::time_domain::{fit_time_domain, TimeFitOptions};
+use crate::estimate::time_domain::{fit_time_domain, time_domain_starts, TimeFitOptions};
 use crate::estimate::{Estimate, EstimateError, Method};
 use crate::prony::PronySeries;
 use crate::recording::Recording;
 use nalgebra::{DMatrix, DVector};
 use periodic::{detect_periodic, PeriodicRun};
+use refine::{refine, Problem, Refined};
 use thiserror::Error;
 
 /// Why a recording could not be fitted.
@@ -462,6 +476,25 @@ pub struct RecordingFit {
     pub band_hz: [f64; 2],
     /// Plain-language remarks about the analysis (not the estimator's own warnings).
     pub notes: Vec<String>,
+    /// The final refinement on the deflection with the drive as input ([`refine`]), when it
+    /// made the estimate.
+    pub refinement: Option<Refinement>,
+}
+
+/// What the deflection refinement ([`refine`]) found besides the Prony parameters.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Refinement {
+    /// Fitted contact position, nm of (calibrated) drive, and its standard error.
+    pub contact_nm: f64,
+    pub contact_sigma_nm: f64,
+    /// Drive nm per nm of actuator motion (1, or the hard reference's slope).
+    pub drive_scale: f64,
+    /// Deflection samples fitted (the window and a few free samples before it).
+    pub samples: usize,
+    /// RMS deflection residual and detector noise (free lever), nm.
+    pub residual_rms_nm: f64,
+    pub noise_nm: f64,
+    pub iterations: usize,
 }
 
 /// Criterion of the time-domain path.
@@ -540,12 +573,53 @@ fn baseline_sensitivity(rec: &Recording, p: &Prepared, model: &PronySeries) -> O
     Some(delta.iter().copied().collect())
 }
 
-/// One order's fit and its BIC.
-type OrderFit = Result<(Estimate, f64), EstimateError>;
+/// One order's fit: its model, its BIC, and its estimate with intervals (or why none).
+struct Fitted {
+    model: PronySeries,
+    bic: f64,
+    estimate: Result<Estimate, EstimateError>,
+    refined: Option<Refined>,
+}
 
-/// Fits a recording (see the module documentation).
+type OrderFit = Result<Fitted, EstimateError>;
+
+/// What one pass of order selection found: every candidate, the chosen order's estimate (and
+/// its refinement), and the last failure.
+type Selection = (
+    Vec<OrderCandidate>,
+    Option<(Estimate, Option<Refined>)>,
+    Option<EstimateError>,
+);
+
+impl Fitted {
+    fn plain((est, bic): (Estimate, f64)) -> Self {
+        Self {
+            model: est.model.clone(),
+            bic,
+            estimate: Ok(est),
+            refined: None,
+        }
+    }
+}
+
+/// Criterion of the time-domain path with the deflection refinement.
+pub const BIC_DEFLECTION: &str = "BIC = N·ln(RSS/N) + p·ln N (N deflection samples, p = 2n+2 \
+                                  parameters: the Prony series and the contact position)";
+
+/// Fits a recording (see the module documentation), refining on the deflection where the
+/// drive allows it.
 pub fn fit_recording(rec: &Recording, terms: Terms) -> Result<RecordingFit, FitError> {
-    let prepared = prepare(rec)?;
+    fit_recording_with(rec, terms, true)
+}
+
+/// [`fit_recording`]; `refine_deflection: false` stops at the first estimate (the
+/// output-error or frequency-domain fit of the linear pair).
+pub fn fit_recording_with(
+    rec: &Recording,
+    terms: Terms,
+    refine_deflection: bool,
+) -> Result<RecordingFit, FitError> {
+    let mut prepared = prepare(rec)?;
     let (u, y, fs) = (&prepared.u, &prepared.y, prepared.fs_hz);
     let len = u.len();
     let orders: Vec<usize> = match terms {
@@ -559,33 +633,41 @@ pub fn fit_recording(rec: &Recording, terms: Terms) -> Result<RecordingFit, FitE
     // One pass of order selection over `range` with `fit_order`.
     let select = |range: std::ops::Range<usize>,
                   fit_order: &dyn Fn(usize) -> OrderFit|
-     -> (Vec<OrderCandidate>, Option<Estimate>, Option<EstimateError>) {
+     -> Selection {
         let span_s = range.len() as f64 / fs;
         let mut candidates = Vec::new();
-        let mut best: Option<(f64, Estimate)> = None;
-        let mut fallback: Option<(f64, Estimate)> = None;
+        type Slot = Option<(f64, (Estimate, Option<Refined>))>;
+        let mut best: Slot = None;
+        let mut fallback: Slot = None;
         let mut last_err = None;
         for &n in &orders {
             match fit_order(n) {
-                Ok((est, bic)) => {
-                    let yhat = simulate_foh(&est.model, u, fs);
+                Ok(Fitted {
+                    model,
+                    bic,
+                    estimate,
+                    refined,
+                }) => {
+                    let yhat = simulate_foh(&model, u, fs);
                     let e = nrmse(&y[range.clone()], &yhat[range.clone()]);
-                    let out_of_range = est
-                        .model
+                    let out_of_range = model
                         .terms
                         .iter()
                         .find(|t| t.tau_s > span_s || t.tau_s < 0.5 / fs);
-                    let rejected = if !est.model.is_physical() {
+                    let rejected = if !model.is_physical() {
                         Some("not physical: negative instantaneous compliance".to_string())
+                    } else if let Some(t) = out_of_range {
+                        Some(format!(
+                            "tau = {:.4e} s is outside what the record resolves ({:.1e} to {:.3e} s)",
+                            t.tau_s,
+                            0.5 / fs,
+                            span_s
+                        ))
                     } else {
-                        out_of_range.map(|t| {
-                            format!(
-                                "tau = {:.4e} s is outside what the record resolves ({:.1e} to {:.3e} s)",
-                                t.tau_s,
-                                0.5 / fs,
-                                span_s
-                            )
-                        })
+                        estimate
+                            .as_ref()
+                            .err()
+                            .map(|e| format!("not identified (no intervals): {e}"))
                     };
                     candidates.push(OrderCandidate {
                         terms: n,
@@ -593,13 +675,16 @@ pub fn fit_recording(rec: &Recording, terms: Terms) -> Result<RecordingFit, FitE
                         nrmse: e,
                         rejected: rejected.clone(),
                     });
+                    let Ok(est) = estimate else {
+                        continue;
+                    };
                     let slot = if rejected.is_none() {
                         &mut best
                     } else {
                         &mut fallback
                     };
                     if slot.as_ref().is_none_or(|(b, _)| bic < *b) {
-                        *slot = Some((bic, est));
+                        *slot = Some((bic, (est, refined)));
                     }
                 }
                 Err(e) => {
@@ -620,12 +705,56 @@ pub fn fit_recording(rec: &Recording, terms: Terms) -> Result<RecordingFit, FitE
     let time_domain = |n: usize| -> OrderFit {
         let mut opts = TimeFitOptions::new(n);
         opts.sampling = sampling;
-        let est = fit_time_domain(u, y, fs, &opts)?;
         let scale2 = y.iter().map(|v| v * v).sum::<f64>() / len as f64;
-        let rss = est.diagnostics.cost * scale2;
         let nf = len as f64;
-        let p = (2 * n + 1) as f64;
-        Ok((est, nf * (rss / nf).max(1e-300).ln() + p * nf.ln()))
+        let bic = |cost: f64| {
+            let rss = cost * scale2;
+            nf * (rss / nf).max(1e-300).ln() + (2 * n + 1) as f64 * nf.ln()
+        };
+        match fit_time_domain(u, y, fs, &opts) {
+            Ok(est) => {
+                let b = bic(est.diagnostics.cost);
+                Ok(Fitted::plain((est, b)))
+            }
+            // An order too many still has a cost: it loses on BIC, not by failing.
+            Err(e @ EstimateError::Unidentified { .. }) => {
+                let EstimateError::Unidentified {
+                    cost, ref model, ..
+                } = e
+                else {
+                    unreachable!()
+                };
+                Ok(Fitted {
+                    model: model.clone(),
+                    bic: bic(cost),
+                    estimate: Err(e.clone()),
+                    refined: None,
+                })
+            }
+            Err(e) => Err(e),
+        }
+    };
+    // The deflection refinement, where the drive gives the actuator's position.
+    let problem = if refine_deflection {
+        match Problem::new(rec, &prepared) {
+            Ok(p) => Some(p),
+            Err(why) => {
+                notes.push(format!("no refinement on the deflection: {why}"));
+                None
+            }
+        }
+    } else {
+        None
+    };
+    // One order refined from `start`, intervals included.
+    let refined = |prob: &Problem, start: &PronySeries| -> OrderFit {
+        let r = refine(prob, start)?;
+        Ok(Fitted {
+            model: r.model.clone(),
+            bic: r.bic(),
+            estimate: r.estimate.clone(),
+            refined: Some(r),
+        })
     };
 
     let mut outcome = None;
@@ -659,12 +788,32 @@ pub fn fit_recording(rec: &Recording, terms: Terms) -> Result<RecordingFit, FitE
             let freq = |n: usize| -> OrderFit {
                 let mut opts = FrequencyFitOptions::new(n, fs, kept);
                 opts.sampling = sampling;
-                let est = fit_spectra(&spectra, &opts)?;
-                let bic = est.diagnostics.cost + (2 * n + 1) as f64 * (2.0 * lines).ln();
-                Ok((est, bic))
+                let price = (2 * n + 1) as f64 * (2.0 * lines).ln();
+                match fit_spectra(&spectra, &opts) {
+                    Ok(est) => {
+                        let bic = est.diagnostics.cost + price;
+                        Ok(Fitted::plain((est, bic)))
+                    }
+                    // An order too many still has a cost: it loses on BIC, not by failing.
+                    Err(e @ EstimateError::Unidentified { .. }) => {
+                        let EstimateError::Unidentified {
+                            cost, ref model, ..
+                        } = e
+                        else {
+                            unreachable!()
+                        };
+                        Ok(Fitted {
+                            model: model.clone(),
+                            bic: cost + price,
+                            estimate: Err(e.clone()),
+                            refined: None,
+                        })
+                    }
+                    Err(e) => Err(e),
+                }
             };
             let (candidates, chosen, err) = select(range.clone(), &freq);
-            let Some(est) = chosen else {
+            let Some((est, _)) = chosen else {
                 notes.push(format!(
                     "periodic drive, but no order could be fitted in the frequency domain ({}): time-domain fit",
                     err.map_or("no start".into(), |e| e.to_string())
@@ -690,34 +839,93 @@ pub fn fit_recording(rec: &Recording, terms: Terms) -> Result<RecordingFit, FitE
                     5.0 * slowest
                 ));
             }
+            // Where the indentation comes from the drive, the contact position is a constant
+            // error of the indentation that no line sees: the refinement fits it.
+            let mut est = est;
+            let mut refined_fit = None;
+            let mut range = range;
+            if let Some(prob) = problem
+                .as_ref()
+                .filter(|_| prepared.indentation_source == "drive")
+            {
+                match refined(prob, &est.model) {
+                    Ok(Fitted {
+                        estimate: Ok(e),
+                        refined: r,
+                        ..
+                    }) => {
+                        est = e;
+                        refined_fit = r;
+                        range = 0..len;
+                    }
+                    Ok(Fitted { estimate: Err(e), .. }) | Err(e) => notes.push(format!(
+                        "the refinement on the deflection failed ({e}): the frequency-domain estimate stands"
+                    )),
+                }
+            }
             outcome = Some((
                 FitMethod::FrequencyMl,
                 range,
                 candidates,
-                est,
+                (est, refined_fit),
                 BIC_FREQUENCY,
                 [fs / (kept * p) as f64, f_hi.min(fs / 2.0)],
             ));
             break;
         }
     }
-    let (method, fitted, candidates, mut estimate, criterion, band_hz) = match outcome {
-        Some(o) => o,
-        None => {
-            let (candidates, chosen, err) = select(0..len, &time_domain);
-            let Some(est) = chosen else {
-                return Err(FitError::Estimate(err.unwrap_or(EstimateError::NoStart)));
-            };
-            (
-                FitMethod::TimeOutputError,
-                0..len,
-                candidates,
-                est,
-                BIC_TIME,
-                [fs / len as f64, fs / 10.0],
-            )
-        }
-    };
+    let (method, fitted, candidates, (mut estimate, refined_fit), criterion, band_hz) =
+        match outcome {
+            Some(o) => o,
+            None => {
+                let (candidates, chosen, err) = match problem.as_ref() {
+                    Some(prob) => select(0..len, &|n| {
+                        // Each order refined from its first estimate; where that fails (an
+                        // order too many), from the first estimate's own starts.
+                        let first = time_domain(n);
+                        match first
+                            .as_ref()
+                            .map_err(Clone::clone)
+                            .map(|f| refined(prob, &f.model))
+                        {
+                            Ok(Ok(f)) => Ok(f),
+                            Ok(Err(e)) | Err(e) => {
+                                let first = first.err().unwrap_or(e);
+                                let mut opts = TimeFitOptions::new(n);
+                                opts.sampling = sampling;
+                                opts.starts = 2;
+                                let starts = time_domain_starts(u, y, fs, &opts)?;
+                                starts
+                                    .iter()
+                                    .map(|s| {
+                                        let v: Vec<f64> = s.iter().map(|x| x.exp()).collect();
+                                        refined(prob, &PronySeries::from_vec(&v))
+                                    })
+                                    .filter_map(Result::ok)
+                                    .min_by(|a, b| a.bic.total_cmp(&b.bic))
+                                    .ok_or(first)
+                            }
+                        }
+                    }),
+                    None => select(0..len, &time_domain),
+                };
+                let Some(est) = chosen else {
+                    return Err(FitError::Estimate(err.unwrap_or(EstimateError::NoStart)));
+                };
+                (
+                    FitMethod::TimeOutputError,
+                    0..len,
+                    candidates,
+                    est,
+                    if problem.is_some() {
+                        BIC_DEFLECTION
+                    } else {
+                        BIC_TIME
+                    },
+                    [fs / len as f64, fs / 10.0],
+                )
+            }
+        };
     if candidates
         .iter()
         .find(|c| c.terms == estimate.model.order())
@@ -729,19 +937,61 @@ pub fn fit_recording(rec: &Recording, terms: Terms) -> Result<RecordingFit, FitE
                 .into(),
         );
     }
-    if method == FitMethod::TimeOutputError {
+    if method == FitMethod::TimeOutputError && refined_fit.is_none() {
         if let Some(delta) = baseline_sensitivity(rec, &prepared, &estimate.model) {
             estimate = estimate.with_systematic(&delta, "the force baseline (free-lever level)");
         }
     }
+    let mut refinement = None;
+    let mut r: Vec<f64> = Vec::new();
+    if let (Some(rf), Some(prob)) = (&refined_fit, &problem) {
+        // The indentation of a drive-derived window, from the fitted contact position.
+        if prepared.indentation_source == "drive" {
+            let contact = rec.meta.contact();
+            let (c, s) = (prepared.contact_index, prob.start);
+            for (j, h) in prepared.indentation_m.iter_mut().enumerate() {
+                let k = c + j - s;
+                *h = (prob.z_nm[k] - rf.contact_nm - prob.d_nm[k]) * 1e-9;
+            }
+            prepared.y = prepared
+                .indentation_m
+                .iter()
+                .map(|&h| contact.y_from_indentation(h))
+                .collect();
+        }
+        let rss: f64 = rf.residuals_nm.iter().map(|v| v * v).sum();
+        refinement = Some(Refinement {
+            contact_nm: rf.contact_nm,
+            contact_sigma_nm: rf.contact_sigma_nm,
+            drive_scale: prob.drive_scale,
+            samples: rf.samples,
+            residual_rms_nm: (rss / rf.samples as f64).sqrt(),
+            noise_nm: prob.sigma_nm,
+            iterations: rf.iterations,
+        });
+        notes.push(format!(
+            "refined on the deflection with the drive as input (errors in variables): contact \
+             at {:.3} ± {:.3} nm of drive, deflection residual {:.4} nm rms against {:.4} nm of \
+             detector noise",
+            rf.contact_nm,
+            rf.contact_sigma_nm,
+            (rss / rf.samples as f64).sqrt(),
+            prob.sigma_nm
+        ));
+        r = rf.residuals_nm.clone();
+    }
+    let (u, y) = (&prepared.u, &prepared.y);
     let yhat = simulate_foh(&estimate.model, u, fs);
-    let r: Vec<f64> = fitted.clone().map(|i| y[i] - yhat[i]).collect();
+    if r.is_empty() {
+        r = fitted.clone().map(|i| y[i] - yhat[i]).collect();
+    }
     let rss: f64 = r.iter().map(|v| v * v).sum();
     let lag1 = r.windows(2).map(|w| w[0] * w[1]).sum::<f64>() / rss.max(1e-300);
     Ok(RecordingFit {
         nrmse: nrmse(&y[fitted.clone()], &yhat[fitted.clone()]),
         residual_lag1: lag1,
         whiteness: whiteness(&r),
+        refinement,
         method,
         periodic,
         fitted,

@@ -347,7 +347,7 @@ pub fn diagnose_with(
     // forces make the force creep out of the noise (it treats the contact as a model
     // parameter), the simple threshold above is the fallback; its material is the nominal
     // twin's first start.
-    let offline = analysis::fit_recording(rec, analysis::Terms::Fixed(NOMINAL_TERMS));
+    let offline = analysis::fit_recording_with(rec, analysis::Terms::Fixed(NOMINAL_TERMS), false);
     let contact = match &offline {
         Ok(f) => Some(f.prepared.contact_index),
         Err(_) => analysis::prepare(rec).ok().map(|p| p.contact_index),

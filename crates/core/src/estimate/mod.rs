@@ -208,6 +208,17 @@ pub enum EstimateError {
          cannot separate the parameters (too few or badly placed lines, or too many terms)"
     )]
     IllConditioned { rcond: f64 },
+    #[error(
+        "not identified: the best fit (cost {cost:.4e}) has an information matrix of \
+         reciprocal condition {rcond:.1e}; the data cannot separate its parameters (too many terms)"
+    )]
+    Unidentified {
+        rcond: f64,
+        /// The optimum's cost, as the estimator defines it (for order selection).
+        cost: f64,
+        /// The optimum (terms in the solver's order).
+        model: PronySeries,
+    },
     #[error("no convergence after {iterations} iterations (cost {cost:.4e})")]
     NoConvergence { iterations: usize, cost: f64 },
     #[error("no physical start value found: every τ-grid candidate gave a negative compliance")]
@@ -241,7 +252,12 @@ pub(crate) fn solve_from_starts(
         .map_err(|(iterations, cost)| EstimateError::NoConvergence { iterations, cost })?;
     let rcond = crate::linalg::scaled_rcond(&best.jtj);
     if rcond < crate::linalg::SINGULAR_RCOND {
-        return Err(EstimateError::IllConditioned { rcond });
+        let v: Vec<f64> = best.params.iter().map(|x| x.exp()).collect();
+        return Err(EstimateError::Unidentified {
+            rcond,
+            cost: best.cost,
+            model: PronySeries::from_vec(&v),
+        });
     }
     Ok((best, rcond))
 }

@@ -43,6 +43,38 @@ impl TimeFitOptions {
     }
 }
 
+/// The start values of [`fit_time_domain`] (log-parameters, best first): variable projection
+/// over a τ grid from 2 samples to half the record, plus `opts.extra_start`.
+pub fn time_domain_starts(
+    u: &[f64],
+    y: &[f64],
+    fs_hz: f64,
+    opts: &TimeFitOptions,
+) -> Result<Vec<Vec<f64>>, EstimateError> {
+    let n = opts.order;
+    let len = u.len();
+    let scale = (y.iter().map(|v| v * v).sum::<f64>() / len.max(1) as f64)
+        .sqrt()
+        .max(1e-300);
+    let highpass = |x: &[f64], tau: f64| match opts.sampling {
+        Sampling::Tustin { .. } => tustin_highpass(x, tau, fs_hz),
+        Sampling::FirstOrderHold { .. } | Sampling::Continuous => foh_highpass(x, tau, fs_hz),
+    };
+    let duration = len as f64 / fs_hz;
+    let taus = log_grid(2.0 / fs_hz, duration / 2.0, opts.grid_size.max(n));
+    let target: Vec<f64> = y.iter().map(|v| v / scale).collect();
+    let j0_col: Vec<f64> = u.iter().map(|v| v / scale).collect();
+    let columns: Vec<Vec<f64>> = taus
+        .iter()
+        .map(|&t| highpass(u, t).iter().map(|v| -v / scale).collect())
+        .collect();
+    with_prior(
+        grid_starts(&target, &j0_col, &columns, &taus, n, opts.starts),
+        opts.extra_start.as_ref(),
+        n,
+    )
+}
+
 /// Fits a Prony series to `u → y` sampled at `fs_hz`.
 pub fn fit_time_domain(
     u: &[f64],
@@ -103,19 +135,7 @@ pub fn fit_time_domain(
         Some((r, jac))
     };
 
-    let duration = len as f64 / fs_hz;
-    let taus = log_grid(2.0 / fs_hz, duration / 2.0, opts.grid_size.max(n));
-    let target: Vec<f64> = y.iter().map(|v| v / scale).collect();
-    let j0_col: Vec<f64> = u.iter().map(|v| v / scale).collect();
-    let columns: Vec<Vec<f64>> = taus
-        .iter()
-        .map(|&t| highpass(u, t, fs_hz).iter().map(|v| -v / scale).collect())
-        .collect();
-    let starts = with_prior(
-        grid_starts(&target, &j0_col, &columns, &taus, n, opts.starts),
-        opts.extra_start.as_ref(),
-        n,
-    )?;
+    let starts = time_domain_starts(u, y, fs_hz, opts)?;
     let (best, rcond) = solve_from_starts(&starts, eval, opts.lm)?;
     let dof = len - n_params;
     let s2 = best.cost / dof as f64;

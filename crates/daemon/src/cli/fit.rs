@@ -159,6 +159,7 @@ pub fn run_fit(args: FitArgs) -> anyhow::Result<()> {
             "periodic": fit.periodic.map(|p| json!({"period_s": p.period_samples as f64 / fs, "periods": p.periods})),
             "indentation_from": fit.prepared.indentation_source,
             "criterion": fit.criterion,
+            "refinement": fit.refinement.as_ref().map(|r| json!({"contact_nm": r.contact_nm, "contact_sigma_nm": r.contact_sigma_nm, "drive_scale": r.drive_scale, "samples": r.samples, "residual_rms_nm": r.residual_rms_nm, "noise_nm": r.noise_nm, "iterations": r.iterations})),
             "order_selection": fit.candidates.iter().map(|c| json!({"terms": c.terms, "bic": if c.bic.is_finite() { json!(c.bic) } else { Value::Null }, "nrmse": if c.nrmse.is_finite() { json!(c.nrmse) } else { Value::Null }, "rejected": c.rejected})).collect::<Vec<_>>(),
         },
         "notes": fit.notes,
@@ -200,6 +201,13 @@ pub fn run_fit(args: FitArgs) -> anyhow::Result<()> {
             "method: time-domain output error — the drive is not periodic; fitted {} samples",
             fit.fitted.len()
         ),
+    }
+    if let Some(r) = &fit.refinement {
+        println!(
+            "refined on the deflection with the drive as input: contact at {:.3} ± {:.3} nm, \
+             residual {:.4} nm rms (detector noise {:.4} nm)",
+            r.contact_nm, r.contact_sigma_nm, r.residual_rms_nm, r.noise_nm
+        );
     }
     println!("order selection: {} (lower is better)", fit.criterion);
     for c in &fit.candidates {
