@@ -573,6 +573,35 @@ fn baseline_sensitivity(rec: &Recording, p: &Prepared, model: &PronySeries) -> O
     Some(delta.iter().copied().collect())
 }
 
+/// `model` with terms added up to `n`, each faster than the last (a fifth of its τ, a tenth
+/// of the instantaneous compliance left): a start for order `n` where the τ grid has no
+/// physical one. `None` unless `model` has fewer than `n` terms and is physical.
+fn one_more_term(model: &PronySeries, n: usize) -> Option<PronySeries> {
+    if model.order() >= n || !model.is_physical() {
+        return None;
+    }
+    let mut m = model.clone();
+    while m.order() < n {
+        let fastest = m
+            .terms
+            .iter()
+            .map(|t| t.tau_s)
+            .fold(f64::INFINITY, f64::min);
+        let tau = if fastest.is_finite() {
+            fastest / 5.0
+        } else {
+            1e-2
+        };
+        let mut terms = m.terms.clone();
+        terms.push(crate::prony::PronyTerm {
+            j_per_pa: 0.1 * m.instantaneous_compliance(),
+            tau_s: tau,
+        });
+        m = PronySeries::new(m.j0_per_pa, terms);
+    }
+    Some(m)
+}
+
 /// One order's fit: its model, its BIC, and its estimate with intervals (or why none).
 struct Fitted {
     model: PronySeries,
@@ -632,7 +661,7 @@ pub fn fit_recording_with(
 
     // One pass of order selection over `range` with `fit_order`.
     let select = |range: std::ops::Range<usize>,
-                  fit_order: &dyn Fn(usize) -> OrderFit|
+                  fit_order: &dyn Fn(usize, Option<&PronySeries>) -> OrderFit|
      -> Selection {
         let span_s = range.len() as f64 / fs;
         let mut candidates = Vec::new();
@@ -640,14 +669,18 @@ pub fn fit_recording_with(
         let mut best: Slot = None;
         let mut fallback: Slot = None;
         let mut last_err = None;
+        // The previous order's optimum: with one more term, a start for this order.
+        let mut prev: Option<PronySeries> = None;
         for &n in &orders {
-            match fit_order(n) {
+            let start = prev.as_ref().and_then(|p| one_more_term(p, n));
+            match fit_order(n, start.as_ref()) {
                 Ok(Fitted {
                     model,
                     bic,
                     estimate,
                     refined,
                 }) => {
+                    prev = Some(model.clone());
                     let yhat = simulate_foh(&model, u, fs);
                     let e = nrmse(&y[range.clone()], &yhat[range.clone()]);
                     let out_of_range = model
@@ -675,8 +708,13 @@ pub fn fit_recording_with(
                         nrmse: e,
                         rejected: rejected.clone(),
                     });
-                    let Ok(est) = estimate else {
-                        continue;
+                    let est = match estimate {
+                        Ok(est) => est,
+                        Err(e) => {
+                            // No intervals: not eligible, and the reason if none is.
+                            last_err = Some(e);
+                            continue;
+                        }
                     };
                     let slot = if rejected.is_none() {
                         &mut best
@@ -702,9 +740,10 @@ pub fn fit_recording_with(
         (candidates, chosen, last_err)
     };
 
-    let time_domain = |n: usize| -> OrderFit {
+    let time_domain = |n: usize, prior: Option<&PronySeries>| -> OrderFit {
         let mut opts = TimeFitOptions::new(n);
         opts.sampling = sampling;
+        opts.extra_start = prior.cloned();
         let scale2 = y.iter().map(|v| v * v).sum::<f64>() / len as f64;
         let nf = len as f64;
         let bic = |cost: f64| {
@@ -785,9 +824,10 @@ pub fn fit_recording_with(
                 }
             };
             let lines = spectra.lines.len() as f64;
-            let freq = |n: usize| -> OrderFit {
+            let freq = |n: usize, prior: Option<&PronySeries>| -> OrderFit {
                 let mut opts = FrequencyFitOptions::new(n, fs, kept);
                 opts.sampling = sampling;
+                opts.extra_start = prior.cloned();
                 let price = (2 * n + 1) as f64 * (2.0 * lines).ln();
                 match fit_spectra(&spectra, &opts) {
                     Ok(est) => {
@@ -879,10 +919,10 @@ pub fn fit_recording_with(
             Some(o) => o,
             None => {
                 let (candidates, chosen, err) = match problem.as_ref() {
-                    Some(prob) => select(0..len, &|n| {
+                    Some(prob) => select(0..len, &|n, prior| {
                         // Each order refined from its first estimate; where that fails (an
                         // order too many), from the first estimate's own starts.
-                        let first = time_domain(n);
+                        let first = time_domain(n, prior);
                         match first
                             .as_ref()
                             .map_err(Clone::clone)
@@ -894,7 +934,9 @@ pub fn fit_recording_with(
                                 let mut opts = TimeFitOptions::new(n);
                                 opts.sampling = sampling;
                                 opts.starts = 2;
-                                let starts = time_domain_starts(u, y, fs, &opts)?;
+                                opts.extra_start = prior.cloned();
+                                let starts =
+                                    time_domain_starts(u, y, fs, &opts).unwrap_or_default();
                                 starts
                                     .iter()
                                     .map(|s| {
