@@ -621,12 +621,25 @@ type Selection = (
 );
 
 impl Fitted {
-    fn plain((est, bic): (Estimate, f64)) -> Self {
-        Self {
-            model: est.model.clone(),
-            bic,
-            estimate: Ok(est),
-            refined: None,
+    /// One order's fit from an estimator's answer, with `bic` of the optimum's cost. An order
+    /// too many still has a cost: it loses on BIC, not by failing.
+    fn from_estimate(res: Result<Estimate, EstimateError>, bic: impl Fn(f64) -> f64) -> OrderFit {
+        match res {
+            Ok(est) => Ok(Self {
+                model: est.model.clone(),
+                bic: bic(est.diagnostics.cost),
+                estimate: Ok(est),
+                refined: None,
+            }),
+            Err(e) => match &e {
+                EstimateError::Unidentified { cost, model, .. } => Ok(Self {
+                    model: model.clone(),
+                    bic: bic(*cost),
+                    estimate: Err(e.clone()),
+                    refined: None,
+                }),
+                _ => Err(e),
+            },
         }
     }
 }
@@ -740,38 +753,19 @@ pub fn fit_recording_with(
         (candidates, chosen, last_err)
     };
 
-    let time_domain = |n: usize, prior: Option<&PronySeries>| -> OrderFit {
+    let time_opts = |n: usize, prior: Option<&PronySeries>| {
         let mut opts = TimeFitOptions::new(n);
         opts.sampling = sampling;
         opts.extra_start = prior.cloned();
-        let scale2 = y.iter().map(|v| v * v).sum::<f64>() / len as f64;
+        opts
+    };
+    let scale2 = y.iter().map(|v| v * v).sum::<f64>() / len as f64;
+    let time_domain = |n: usize, prior: Option<&PronySeries>| -> OrderFit {
         let nf = len as f64;
-        let bic = |cost: f64| {
+        Fitted::from_estimate(fit_time_domain(u, y, fs, &time_opts(n, prior)), |cost| {
             let rss = cost * scale2;
             nf * (rss / nf).max(1e-300).ln() + (2 * n + 1) as f64 * nf.ln()
-        };
-        match fit_time_domain(u, y, fs, &opts) {
-            Ok(est) => {
-                let b = bic(est.diagnostics.cost);
-                Ok(Fitted::plain((est, b)))
-            }
-            // An order too many still has a cost: it loses on BIC, not by failing.
-            Err(e @ EstimateError::Unidentified { .. }) => {
-                let EstimateError::Unidentified {
-                    cost, ref model, ..
-                } = e
-                else {
-                    unreachable!()
-                };
-                Ok(Fitted {
-                    model: model.clone(),
-                    bic: bic(cost),
-                    estimate: Err(e.clone()),
-                    refined: None,
-                })
-            }
-            Err(e) => Err(e),
-        }
+        })
     };
     // The deflection refinement, where the drive gives the actuator's position.
     let problem = if refine_deflection {
@@ -829,28 +823,7 @@ pub fn fit_recording_with(
                 opts.sampling = sampling;
                 opts.extra_start = prior.cloned();
                 let price = (2 * n + 1) as f64 * (2.0 * lines).ln();
-                match fit_spectra(&spectra, &opts) {
-                    Ok(est) => {
-                        let bic = est.diagnostics.cost + price;
-                        Ok(Fitted::plain((est, bic)))
-                    }
-                    // An order too many still has a cost: it loses on BIC, not by failing.
-                    Err(e @ EstimateError::Unidentified { .. }) => {
-                        let EstimateError::Unidentified {
-                            cost, ref model, ..
-                        } = e
-                        else {
-                            unreachable!()
-                        };
-                        Ok(Fitted {
-                            model: model.clone(),
-                            bic: cost + price,
-                            estimate: Err(e.clone()),
-                            refined: None,
-                        })
-                    }
-                    Err(e) => Err(e),
-                }
+                Fitted::from_estimate(fit_spectra(&spectra, &opts), |cost| cost + price)
             };
             let (candidates, chosen, err) = select(range.clone(), &freq);
             let Some((est, _)) = chosen else {
@@ -931,10 +904,10 @@ pub fn fit_recording_with(
                             Ok(Ok(f)) => Ok(f),
                             Ok(Err(e)) | Err(e) => {
                                 let first = first.err().unwrap_or(e);
-                                let mut opts = TimeFitOptions::new(n);
-                                opts.sampling = sampling;
-                                opts.starts = 2;
-                                opts.extra_start = prior.cloned();
+                                let opts = TimeFitOptions {
+                                    starts: 2,
+                                    ..time_opts(n, prior)
+                                };
                                 let starts =
                                     time_domain_starts(u, y, fs, &opts).unwrap_or_default();
                                 starts
