@@ -23,6 +23,7 @@
 //! contact position's uncertainty is in the Prony parameters' marginal intervals.
 
 use super::Prepared;
+use crate::contact::decreasing_root;
 use crate::estimate::lm::{solve_lazy, LmOptions, LmResult};
 use crate::estimate::{Diagnostics, Estimate, EstimateError, Method};
 use crate::linalg::spd_inverse;
@@ -129,27 +130,13 @@ impl Problem {
 
     /// Model deflection, nm, of `model` with the contact at `zc_nm`.
     pub fn simulate(&self, model: &PronySeries, zc_nm: f64) -> Vec<f64> {
-        simulate_deflection(
-            model,
-            zc_nm,
-            &self.z_nm,
-            self.k_n_per_m * self.force_factor,
-            self.exponent,
-            self.fs_hz,
-        )
+        self.simulate_on(&self.z_nm, model, zc_nm)
     }
 
-    /// [`Problem::simulate`] with the drive positions scaled by `1 + eps`.
-    fn simulate_scaled(&self, model: &PronySeries, zc_nm: f64, eps: f64) -> Vec<f64> {
-        let z: Vec<f64> = self.z_nm.iter().map(|x| x * (1.0 + eps)).collect();
-        simulate_deflection(
-            model,
-            zc_nm,
-            &z,
-            self.k_n_per_m * self.force_factor,
-            self.exponent,
-            self.fs_hz,
-        )
+    /// [`Problem::simulate`] on other drive positions `z_nm`.
+    fn simulate_on(&self, z_nm: &[f64], model: &PronySeries, zc_nm: f64) -> Vec<f64> {
+        let kc = self.k_n_per_m * self.force_factor;
+        simulate_deflection(model, zc_nm, z_nm, kc, self.exponent, self.fs_hz)
     }
 }
 
@@ -231,31 +218,15 @@ pub fn simulate_deflection(
         // f(d) = (g − d)^k − a·d − β, decreasing on [0, g]; in contact when f(0) > 0.
         let f = |d: f64| pow(g - d) - a * d - beta;
         if g > 0.0 && f(0.0) > 0.0 {
-            let (mut lo, mut hi) = (0.0, g);
-            if f(hi) >= 0.0 {
-                d = hi;
+            d = if f(g) >= 0.0 {
+                g
             } else {
-                d = d.clamp(lo, hi);
-                for _ in 0..100 {
-                    let fd = f(d);
-                    if fd > 0.0 {
-                        lo = d;
-                    } else {
-                        hi = d;
-                    }
+                let slope = |d: f64| {
                     let h = (g - d).max(1e-300);
-                    let slope = -expo * pow(h) / h - a;
-                    let mut next = d - fd / slope;
-                    if !(next > lo && next < hi) {
-                        next = 0.5 * (lo + hi);
-                    }
-                    let step = (next - d).abs();
-                    d = next;
-                    if step <= 1e-15 * g || hi - lo <= 1e-15 * g {
-                        break;
-                    }
-                }
-            }
+                    -expo * pow(h) / h - a
+                };
+                decreasing_root(f, slope, (0.0, g), d, 1e-15 * g, 100)
+            };
         } else {
             d = 0.0;
         }
@@ -346,16 +317,18 @@ pub fn refine(prob: &Problem, start: &PronySeries) -> Result<Refined, EstimateEr
         ..LmOptions::default()
     };
     let res: LmResult = solve_lazy(&p0, residuals, jacobian, opts).ok_or(EstimateError::NoStart)?;
-    // Terms slowest first, so the covariance needs no permutation.
-    let mut p = res.params.clone();
+    // Terms slowest first: the parameters and the solver's Jacobian at the optimum permuted
+    // alike, so the covariance needs no permutation and nothing is simulated again.
     let mut order: Vec<usize> = (0..n).collect();
-    order.sort_by(|&a, &b| p[1 + n + b].total_cmp(&p[1 + n + a]));
-    let sorted: Vec<f64> = std::iter::once(p[0])
-        .chain(order.iter().map(|&i| p[1 + i]))
-        .chain(order.iter().map(|&i| p[1 + n + i]))
-        .chain(std::iter::once(p[np - 1]))
+    order.sort_by(|&a, &b| res.params[1 + n + b].total_cmp(&res.params[1 + n + a]));
+    let perm: Vec<usize> = std::iter::once(0)
+        .chain(order.iter().map(|&i| 1 + i))
+        .chain(order.iter().map(|&i| 1 + n + i))
+        .chain(std::iter::once(np - 1))
         .collect();
-    p = sorted;
+    let p: Vec<f64> = perm.iter().map(|&i| res.params[i]).collect();
+    let jac = DMatrix::from_fn(len, np, |k, c| res.jacobian[(k, perm[c])]);
+    let r = &res.residuals;
     let (model, contact_nm) = unpack(&p).ok_or(EstimateError::NoStart)?;
     let rss = res.cost * prob.sigma_nm.powi(2);
     let residuals_nm: Vec<f64> = res.residuals.iter().map(|r| r * prob.sigma_nm).collect();
@@ -370,8 +343,6 @@ pub fn refine(prob: &Problem, start: &PronySeries) -> Result<Refined, EstimateEr
         iterations: res.iterations,
         converged: res.converged,
     };
-    let r = residuals(&p).ok_or(EstimateError::NoStart)?;
-    let jac = jacobian(&p, &r).ok_or(EstimateError::NoStart)?;
     let jtj = jac.transpose() * &jac;
     let rcond = crate::linalg::scaled_rcond(&jtj);
     let dof = len - np;
@@ -401,31 +372,32 @@ pub fn refine(prob: &Problem, start: &PronySeries) -> Result<Refined, EstimateEr
         warnings,
     };
     let mut est = Estimate::from_log_fit(Method::TimeOutputError, &p[..np - 1], block, diagnostics);
-    // One standard error of the baseline level shifts every measured deflection by the same
-    // amount, which the fit carries into its parameters by (JᵀJ)⁻¹Jᵀ·Δr.
+    // A calibration error shifts the measured deflection by Δr (in units of the noise), which
+    // the fit carries into its parameters by (JᵀJ)⁻¹Jᵀ·Δr.
+    let chol = jtj.cholesky();
+    let shift = |dr: DVector<f64>| -> Option<Vec<f64>> {
+        let delta = chol.as_ref()?.solve(&(jac.transpose() * dr));
+        Some(delta.as_slice()[..np - 1].to_vec())
+    };
+    // One standard error of the baseline level shifts every deflection by the same amount.
     if prob.baseline_sigma_nm > 0.0 {
         let dr = DVector::from_element(len, prob.baseline_sigma_nm / prob.sigma_nm);
-        if let Some(ch) = jtj.clone().cholesky() {
-            let delta = ch.solve(&(jac.transpose() * dr));
-            est = est.with_systematic(
-                &delta.as_slice()[..np - 1],
-                "the force baseline (free-lever level)",
-            );
+        if let Some(delta) = shift(dr) {
+            est = est.with_systematic(&delta, "the force baseline (free-lever level)");
         }
     }
-    // The drive's calibration against the reference likewise: the model run on drive
-    // positions scaled by one standard error of the slope.
+    // The drive's calibration against the reference: the model run on drive positions scaled
+    // by one standard error of the slope.
     if prob.drive_scale_sigma > 0.0 {
         let eps = prob.drive_scale_sigma / prob.drive_scale;
-        let (m, zc) = unpack(&p).ok_or(EstimateError::NoStart)?;
-        let (base, scaled) = (prob.simulate(&m, zc), prob.simulate_scaled(&m, zc, eps));
+        let z: Vec<f64> = prob.z_nm.iter().map(|x| x * (1.0 + eps)).collect();
+        let (base, scaled) = (
+            prob.simulate(&out.model, contact_nm),
+            prob.simulate_on(&z, &out.model, contact_nm),
+        );
         let dr = DVector::from_fn(len, |k, _| (scaled[k] - base[k]) / prob.sigma_nm);
-        if let Some(ch) = jtj.clone().cholesky() {
-            let delta = ch.solve(&(jac.transpose() * dr));
-            est = est.with_systematic(
-                &delta.as_slice()[..np - 1],
-                "the drive's scale against the hard reference",
-            );
+        if let Some(delta) = shift(dr) {
+            est = est.with_systematic(&delta, "the drive's scale against the hard reference");
         }
     }
     out.estimate = Ok(est);
@@ -438,6 +410,9 @@ mod tests {
     use crate::analysis::simulate_foh;
     use crate::contact::Contact;
     use crate::prony::PronyTerm;
+    use rand::rngs::StdRng;
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, StandardNormal};
 
     fn gel() -> PronySeries {
         PronySeries::new(
@@ -505,19 +480,14 @@ mod tests {
         let zc = 100.0;
         let clean = simulate_deflection(&truth, zc, &z, k * contact.force_factor(), 1.5, fs);
         let sigma = 0.085;
-        // Box–Muller on a fixed LCG: deterministic Gaussian noise.
-        let mut s = 7u64;
-        let mut uniform = || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((s >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-        };
+        let mut rng = StdRng::seed_from_u64(7);
         let d_nm: Vec<f64> = clean
             .iter()
             .map(|c| {
-                let (a, b) = (uniform(), uniform());
-                c + sigma * (-2.0 * a.ln()).sqrt() * (std::f64::consts::TAU * b).cos()
+                c + sigma * {
+                    let z: f64 = StandardNormal.sample(&mut rng);
+                    z
+                }
             })
             .collect();
         let prob = Problem {
