@@ -101,6 +101,42 @@ impl Contact {
     }
 }
 
+/// The root of a contact equation `g(d) = 0` in the lever's deflection `d`: `g` decreasing
+/// on the bracket `[lo, hi]` (`g(lo) ≥ 0 ≥ g(hi)`), `slope` its derivative (or a close
+/// enough one). Newton steps from `x0`, the previous sample's root, which a slowly moving base
+/// leaves two or three steps away; a step that leaves the shrinking bracket is replaced by
+/// bisection, so it converges whatever the slope. Stops when a step or the bracket falls
+/// below `tol`, or after `max_iter` steps. The twin and the fit's deflection refinement both
+/// solve their contacts with it.
+pub fn decreasing_root(
+    g: impl Fn(f64) -> f64,
+    slope: impl Fn(f64) -> f64,
+    (mut lo, mut hi): (f64, f64),
+    x0: f64,
+    tol: f64,
+    max_iter: usize,
+) -> f64 {
+    let mut d = x0.clamp(lo, hi);
+    for _ in 0..max_iter {
+        let gd = g(d);
+        if gd > 0.0 {
+            lo = d;
+        } else {
+            hi = d;
+        }
+        let mut next = d - gd / slope(d);
+        if !(next > lo && next < hi) {
+            next = 0.5 * (lo + hi);
+        }
+        let step = (next - d).abs();
+        d = next;
+        if step <= tol || hi - lo <= tol {
+            break;
+        }
+    }
+    d
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

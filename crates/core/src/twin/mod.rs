@@ -25,7 +25,7 @@ pub mod dynamics;
 pub mod feedforward;
 pub mod material;
 
-use crate::contact::{Contact, TipGeometry};
+use crate::contact::{decreasing_root, Contact, TipGeometry};
 use crate::prony::PronySeries;
 use actuator::{Actuator, ActuatorConfig};
 use detector::{Detector, DetectorConfig};
@@ -520,32 +520,15 @@ impl Twin {
             gap_m > 0.0 && gap_m.powf(expo) > beta
         };
         let (d_m, u) = if touching {
-            // Safeguarded Newton from the previous solution: g is monotone on [lo, hi], so a
-            // step that leaves the bracket is replaced by bisection. Two or three steps suffice
-            // from a warm start, which is what keeps the twin far faster than real time.
-            let (mut lo, mut hi) = (d_lo, gap_m.max(d_lo));
-            let mut d = (self.last_d_m).clamp(lo, hi);
-            let tol = 1e-14 * (1.0 + gap_m.abs());
-            for _ in 0..60 {
-                let gd = g(d);
-                if gd > 0.0 {
-                    lo = d;
-                } else {
-                    hi = d;
-                }
+            // Two or three Newton steps from the previous solution are what keep the twin far
+            // faster than real time. The slope neglects the slow variation of the substrate
+            // correction.
+            let slope = |d: f64| {
                 let h = (gap_m - d).max(1e-300);
-                // dg/dd, neglecting the slow variation of the substrate correction.
-                let slope = -expo * h.powf(expo - 1.0) - alpha * cf * k_si / corr(h);
-                let mut next = d - gd / slope;
-                if !(next > lo && next < hi) {
-                    next = 0.5 * (lo + hi);
-                }
-                let step = (next - d).abs();
-                d = next;
-                if step <= tol || hi - lo <= tol {
-                    break;
-                }
-            }
+                -expo * h.powf(expo - 1.0) - alpha * cf * k_si / corr(h)
+            };
+            let tol = 1e-14 * (1.0 + gap_m.abs());
+            let d = decreasing_root(g, slope, (d_lo, gap_m.max(d_lo)), self.last_d_m, tol, 60);
             let h = (gap_m - d).max(0.0);
             (d, cf * (k_si * d + f_adh_n) / corr(h))
         } else if let Some(d) = self.neck_hold(gap_m, d_lo, commit) {
