@@ -447,17 +447,10 @@ pub fn diagnose_with(
     // that misfit: on the shared JPK gel the long adhesive pull of the retract counted for
     // less than the edges around it. Such a recording is weighted equally instead.
     let gross = nom.eval.chi2_train / problem.train.len() as f64 > GROSS_MISFIT;
-    if gross && problem.whitening.len() > 1 {
-        problem.whitening = vec![1.0];
-        problem.sigma_w_v = noise.sigma_v;
-        problem.fixed_columns = Default::default();
+    if gross && problem.weighting() == Weighting::Whitened {
+        problem.weigh_equally(noise.sigma_v);
         nom = fit_nominal(&problem)?;
     }
-    let weighting = if problem.whitening.len() > 1 {
-        Weighting::Whitened
-    } else {
-        Weighting::Equal
-    };
     let sims_nominal = problem.simulations();
 
     // 2. Locate, on the nominal residual.
@@ -727,7 +720,7 @@ pub fn diagnose_with(
         whitened_after: white_final,
         simulations: problem.simulations(),
         base_position,
-        weighting,
+        weighting: problem.weighting(),
     })
 }
 

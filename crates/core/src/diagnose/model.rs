@@ -560,6 +560,23 @@ impl Problem {
         cols
     }
 
+    /// Drops the whitening: every residual sample weighs the same, in units of `sigma_v`.
+    /// The cached whitened columns go with it.
+    pub fn weigh_equally(&mut self, sigma_v: f64) {
+        self.whitening = vec![1.0];
+        self.sigma_w_v = sigma_v;
+        self.fixed_columns = Default::default();
+    }
+
+    /// How residuals are weighted.
+    pub fn weighting(&self) -> super::Weighting {
+        if self.whitening.len() > 1 {
+            super::Weighting::Whitened
+        } else {
+            super::Weighting::Equal
+        }
+    }
+
     /// Applies the whitening filter.
     pub fn whiten(&self, x: &[f64]) -> Vec<f64> {
         let a = &self.whitening;
