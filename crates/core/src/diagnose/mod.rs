@@ -193,10 +193,25 @@ pub struct Diagnosis {
     /// Whitened, σ-normalised residuals (before and after), for spectra against the floor.
     pub whitened_before: Vec<f64>,
     pub whitened_after: Vec<f64>,
-    /// Twin simulations run.
-    pub simulations: usize,
+    /// Twin simulations run, by stage: the cost of the diagnosis.
+    pub simulations: Simulations,
     pub base_position: BasePosition,
     pub weighting: Weighting,
+}
+
+/// Twin simulations a diagnosis ran, by stage.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Simulations {
+    pub nominal: usize,
+    pub screening: usize,
+    pub refits: usize,
+    pub pairs: usize,
+}
+
+impl Simulations {
+    pub fn total(&self) -> usize {
+        self.nominal + self.screening + self.refits + self.pairs
+    }
 }
 
 /// χ² per sample of the nominal fit above which the misfit is taken as gross: the floor's
@@ -649,14 +664,12 @@ pub fn diagnose_with(
             }
         }
     }
-    if std::env::var_os("VP_DIAG_DEBUG").is_some() {
-        eprintln!(
-            "simulations: nominal {sims_nominal}, screening {}, refits {}, pairs {}",
-            sims_screen - sims_nominal,
-            sims_refit - sims_screen,
-            problem.simulations() - sims_refit
-        );
-    }
+    let simulations = Simulations {
+        nominal: sims_nominal,
+        screening: sims_screen - sims_nominal,
+        refits: sims_refit - sims_screen,
+        pairs: problem.simulations() - sims_refit,
+    };
     // Rank: the chosen model's effects first (marked significant), everything else after.
     for r in reports.iter_mut() {
         r.significant = chosen_effects.iter().any(|e| e.id() == r.id);
@@ -718,7 +731,7 @@ pub fn diagnose_with(
         t_s,
         whitened_before: white_nom,
         whitened_after: white_final,
-        simulations: problem.simulations(),
+        simulations,
         base_position,
         weighting: problem.weighting(),
     })

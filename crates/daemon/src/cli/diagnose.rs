@@ -113,7 +113,16 @@ pub fn diagnosis_json(file: &str, d: &Diagnosis, seconds: f64) -> Value {
         },
         "base_position": d.base_position.id(),
         "weighting": d.weighting.id(),
-        "cost": {"simulations": d.simulations, "seconds": seconds},
+        "cost": {
+            "simulations": d.simulations.total(),
+            "simulations_by_stage": {
+                "nominal": d.simulations.nominal,
+                "screening": d.simulations.screening,
+                "refits": d.simulations.refits,
+                "pairs": d.simulations.pairs,
+            },
+            "seconds": seconds,
+        },
     })
 }
 
@@ -136,18 +145,10 @@ pub fn run(args: DiagnoseArgs) -> anyhow::Result<()> {
             rec.sample_rate_hz
         );
     }
-    let fan = args.threads.map_or_else(Threads::all_cores, Threads::new);
-    let virtual_start = crate::fan::virtual_now();
+    let fan = args.threads.map_or_else(Threads::all_cores, Threads::new)?;
     let d = diagnose_with(&rec, &DiagnoseOptions::default(), &fan)
         .with_context(|| format!("diagnosing {}", args.recording.display()))?;
     let seconds = started.elapsed().as_secs_f64();
-    if std::env::var_os("VP_DIAG_DEBUG").is_some() {
-        eprintln!(
-            "fan: {:.1} s on {} threads of an idle machine ({seconds:.1} s here)",
-            crate::fan::virtual_now() - virtual_start,
-            fan.threads(),
-        );
-    }
     if let Some(dir) = &args.plot {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         let written = write_plots(dir, &d)?;
@@ -167,8 +168,12 @@ pub fn run(args: DiagnoseArgs) -> anyhow::Result<()> {
 
 fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
     println!(
-        "{file}: diagnosis in {seconds:.1} s ({} twin simulations)",
-        d.simulations
+        "{file}: diagnosis in {seconds:.1} s ({} twin simulations: {} nominal, {} screening, {} refits, {} pairs)",
+        d.simulations.total(),
+        d.simulations.nominal,
+        d.simulations.screening,
+        d.simulations.refits,
+        d.simulations.pairs,
     );
     println!(
         "noise floor: {:.3} mV rms ({:.3} mV whitened, AR order {}), measured on {} samples, {}",
@@ -505,30 +510,27 @@ pub fn run_corpus(
 ) -> anyhow::Result<Vec<CaseOutcome>> {
     let threads = threads.clamp(1, cases.len().max(1));
     // Each case its own fan: a case's helper threads are not the others' to take.
-    let per_case = cores() / threads;
+    let fans = (0..threads)
+        .map(|_| Threads::new(cores() / threads))
+        .collect::<anyhow::Result<Vec<_>>>()?;
     let next = std::sync::atomic::AtomicUsize::new(0);
     let done = std::sync::atomic::AtomicUsize::new(0);
     let out = std::sync::Mutex::new(Vec::<(usize, anyhow::Result<CaseOutcome>)>::new());
     std::thread::scope(|s| {
-        for _ in 0..threads {
-            s.spawn(|| {
-                let fan = Threads::new(per_case);
-                loop {
-                    let i = next.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
-                    let Some(c) = cases.get(i) else { break };
-                    let t0 = std::time::Instant::now();
-                    let r = diagnose_with(&c.recording, &DiagnoseOptions::default(), &fan)
-                        .map(|d| {
-                            CaseOutcome::new(&c.name, &c.effects, &d, t0.elapsed().as_secs_f64())
-                        })
-                        .with_context(|| format!("case {}", c.name));
-                    if let Ok(o) = &r {
-                        let k = done.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1;
-                        progress(o, k, cases.len());
-                    }
-                    if let Ok(mut g) = out.lock() {
-                        g.push((i, r));
-                    }
+        for fan in &fans {
+            s.spawn(|| loop {
+                let i = next.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+                let Some(c) = cases.get(i) else { break };
+                let t0 = std::time::Instant::now();
+                let r = diagnose_with(&c.recording, &DiagnoseOptions::default(), fan)
+                    .map(|d| CaseOutcome::new(&c.name, &c.effects, &d, t0.elapsed().as_secs_f64()))
+                    .with_context(|| format!("case {}", c.name));
+                if let Ok(o) = &r {
+                    let k = done.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1;
+                    progress(o, k, cases.len());
+                }
+                if let Ok(mut g) = out.lock() {
+                    g.push((i, r));
                 }
             });
         }
