@@ -43,6 +43,21 @@ impl TimeFitOptions {
     }
 }
 
+/// RMS of the output: the unit the residuals are scaled to.
+fn output_scale(y: &[f64]) -> f64 {
+    (y.iter().map(|v| v * v).sum::<f64>() / y.len().max(1) as f64)
+        .sqrt()
+        .max(1e-300)
+}
+
+/// The Prony term's high-pass response to `x` in the sampling model's discretisation.
+fn highpass(sampling: Sampling, x: &[f64], tau: f64, fs_hz: f64) -> Vec<f64> {
+    match sampling {
+        Sampling::Tustin { .. } => tustin_highpass(x, tau, fs_hz),
+        Sampling::FirstOrderHold { .. } | Sampling::Continuous => foh_highpass(x, tau, fs_hz),
+    }
+}
+
 /// The start values of [`fit_time_domain`] (log-parameters, best first): variable projection
 /// over a τ grid from 2 samples to half the record, plus `opts.extra_start`.
 pub fn time_domain_starts(
@@ -53,20 +68,19 @@ pub fn time_domain_starts(
 ) -> Result<Vec<Vec<f64>>, EstimateError> {
     let n = opts.order;
     let len = u.len();
-    let scale = (y.iter().map(|v| v * v).sum::<f64>() / len.max(1) as f64)
-        .sqrt()
-        .max(1e-300);
-    let highpass = |x: &[f64], tau: f64| match opts.sampling {
-        Sampling::Tustin { .. } => tustin_highpass(x, tau, fs_hz),
-        Sampling::FirstOrderHold { .. } | Sampling::Continuous => foh_highpass(x, tau, fs_hz),
-    };
+    let scale = output_scale(y);
     let duration = len as f64 / fs_hz;
     let taus = log_grid(2.0 / fs_hz, duration / 2.0, opts.grid_size.max(n));
     let target: Vec<f64> = y.iter().map(|v| v / scale).collect();
     let j0_col: Vec<f64> = u.iter().map(|v| v / scale).collect();
     let columns: Vec<Vec<f64>> = taus
         .iter()
-        .map(|&t| highpass(u, t).iter().map(|v| -v / scale).collect())
+        .map(|&t| {
+            highpass(opts.sampling, u, t, fs_hz)
+                .iter()
+                .map(|v| -v / scale)
+                .collect()
+        })
         .collect();
     with_prior(
         grid_starts(&target, &j0_col, &columns, &taus, n, opts.starts),
@@ -102,13 +116,8 @@ pub fn fit_time_domain(
             "the input is constant over the record".into(),
         ));
     }
-    let scale = (y.iter().map(|v| v * v).sum::<f64>() / len as f64)
-        .sqrt()
-        .max(1e-300);
-    let highpass = |x: &[f64], tau: f64, fs: f64| match opts.sampling {
-        Sampling::Tustin { .. } => tustin_highpass(x, tau, fs),
-        Sampling::FirstOrderHold { .. } | Sampling::Continuous => foh_highpass(x, tau, fs),
-    };
+    let scale = output_scale(y);
+    let highpass = |x: &[f64], tau: f64, fs: f64| highpass(opts.sampling, x, tau, fs);
     let eval = |p: &[f64]| -> Evaluation {
         if p.iter().any(|v| !v.is_finite() || v.abs() > 700.0) {
             return None;
