@@ -252,7 +252,6 @@ pub struct Refined {
     /// Deflection residuals, nm.
     pub residuals_nm: Vec<f64>,
     pub iterations: usize,
-    pub converged: bool,
 }
 
 impl Refined {
@@ -341,7 +340,6 @@ pub fn refine(prob: &Problem, start: &PronySeries) -> Result<Refined, EstimateEr
         samples: len,
         residuals_nm,
         iterations: res.iterations,
-        converged: res.converged,
     };
     let jtj = jac.transpose() * &jac;
     let rcond = crate::linalg::scaled_rcond(&jtj);
@@ -356,6 +354,13 @@ pub fn refine(prob: &Problem, start: &PronySeries) -> Result<Refined, EstimateEr
     let block = cov.view((0, 0), (np - 1, np - 1)).into_owned();
     let lag1 = (1..len).map(|t| r[t] * r[t - 1]).sum::<f64>() / res.cost.max(1e-300);
     let mut warnings = Vec::new();
+    if !res.converged {
+        warnings.push(format!(
+            "the refinement on the deflection stopped at its limit of {} iterations before \
+             converging: the estimate is its last point",
+            opts.max_iterations
+        ));
+    }
     if lag1.abs() > 3.0 / (len as f64).sqrt() {
         warnings.push(format!(
             "deflection residuals are correlated (lag-1 correlation {lag1:.3}); intervals \

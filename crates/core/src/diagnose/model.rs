@@ -155,10 +155,6 @@ impl Effect {
             _ => vec![],
         }
     }
-
-    pub fn n_nonlinear(self) -> usize {
-        self.nonlinear_names().len()
-    }
 }
 
 /// Which model: the effects switched on.
