@@ -10,7 +10,7 @@ use viscoprobe_core::prony::{PronySeries, PronyTerm};
 use viscoprobe_core::recording::Recording;
 use viscoprobe_daemon::cli::simulate::write_atomic;
 use viscoprobe_daemon::config::SimConfigFile;
-use viscoprobe_daemon::simrun::{simulate_recording, DriveProfile};
+use viscoprobe_daemon::simrun::{sim_limits, simulate_recording, DriveProfile};
 
 const FS: f64 = 4000.0;
 const JPK_NAME: &str = "fmt-jpk-cc_pr14-polymergel-2021.06.30.jpk-force";
@@ -68,6 +68,10 @@ fn creep_recording(dir: &Path) -> PathBuf {
     cfg.instrument.sample_rate_hz = FS;
     cfg.instrument.block_len = 400;
     cfg.twin.sample.material = truth();
+    // 2 µm of travel over ±10 V: the 0.5 µm of the 50 nm/V default is less than the approach,
+    // the lever's share and the gel's indentation, and the safety layer would clip the drive
+    // at 10 V (the "hold" would then be a hold of the base, not of the force).
+    cfg.twin.actuator.gain_nm_per_v = 200.0;
     let t = &cfg.twin;
     let contact = t.contact();
     let k = t.cantilever.spring_constant_n_per_m;
@@ -96,6 +100,12 @@ fn creep_recording(dir: &Path) -> PathBuf {
         periods: 1,
         period_samples: 0,
     };
+    let clip = sim_limits(&cfg).max_drive_v;
+    let peak = profile.drive_v.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+    assert!(
+        peak < 0.95 * clip,
+        "the drive reaches {peak:.3} V of the {clip} V clip"
+    );
     let rec = simulate_recording(&cfg, &profile, |_, _, _| {}).unwrap();
     let csv = dir.join("creep.csv");
     write_atomic(&csv, &dir.join("creep.toml"), &rec).unwrap();
