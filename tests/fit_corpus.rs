@@ -3,6 +3,14 @@
 //! multisine, a ramp-and-hold (creep) and a stress relaxation, on materials with 2, 3 and 4
 //! Prony terms; `Terms::Auto` (BIC over 1 to 5 terms) picks the true order on each.
 //!
+//! "Intervals that cover it" is tested the only way an honest 95 % interval can pass: on each
+//! record the truth must lie in the joint 95 % confidence region (the covariance ellipsoid the
+//! marginal intervals come from), and no marginal interval may miss by more than 3.29 σ; the
+//! marginal 95 % intervals' coverage *rate* is tested over 20 noise seeds of the 3-term
+//! creep and relaxation records (≥ 90 %; measured 93.6 % on both). Asking every one of seven
+//! marginal 95 % intervals to cover on one record would fail about 30 % of records even if
+//! every interval were exact, or pass only with intervals made too wide.
+//!
 //! The fitting path sees only what a third-party file would carry: `[notes]`, `[truth]` and
 //! the simulator's extra columns are stripped before the fit, so contact, window and the kind
 //! of excitation are found from the samples. Two more recordings are written the way another
@@ -323,6 +331,7 @@ fn check(label: &str, fit: &RecordingFit, truth: &PronySeries) -> Result<String,
         .zip(est.values())
         .map(|([lo, hi], v)| 50.0 * (hi - lo) / v)
         .fold(0.0f64, f64::max);
+    let mut misses = Vec::new();
     for (i, (w, e)) in truth.to_vec().iter().zip(est.values()).enumerate() {
         let rel = 100.0 * (e - w) / w;
         worst = worst.max(rel.abs());
@@ -330,10 +339,17 @@ fn check(label: &str, fit: &RecordingFit, truth: &PronySeries) -> Result<String,
         if lo <= *w && *w <= hi {
             covered += 1;
         } else {
-            fails.push(format!(
-                "{}: CI [{lo:.4e}, {hi:.4e}] misses {w:.4e}",
-                est.names()[i]
-            ));
+            let z = (e - w) / est.std[i];
+            let miss = format!("{} {z:+.2}σ", est.names()[i]);
+            // A 95 % marginal interval misses by chance; by more than 3.29 σ (0.1 %) it is
+            // not chance but a too narrow interval or a bias.
+            if z.abs() > 3.29 {
+                fails.push(format!(
+                    "{}: CI [{lo:.4e}, {hi:.4e}] misses {w:.4e} by {z:+.2}σ",
+                    est.names()[i]
+                ));
+            }
+            misses.push(miss);
         }
         if rel.abs() > 2.0 {
             fails.push(format!(
@@ -342,8 +358,26 @@ fn check(label: &str, fit: &RecordingFit, truth: &PronySeries) -> Result<String,
             ));
         }
     }
+    // The joint 95 % confidence region (the ellipsoid of the covariance the intervals come
+    // from) must hold the true parameter vector. Seven marginal 95 % intervals all cover only
+    // about 70 % of the time even when every one is honest, so a single record can only be
+    // asked for the joint statement; the marginal coverage rate is tested over seeds
+    // (`three_term_creep_intervals_over_seeds`).
+    let d2 = mahalanobis2(est, truth);
+    let limit = chi2_95(truth.n_params());
+    if !(d2 <= limit) {
+        fails.push(format!(
+            "truth outside the joint 95 % region: Mahalanobis² {d2:.2} > χ²({}, 0.95) = {limit:.2}",
+            truth.n_params()
+        ));
+    }
+    let missed = if misses.is_empty() {
+        String::new()
+    } else {
+        format!(" (missed: {})", misses.join(", "))
+    };
     let line = format!(
-        "{head}: max |error| {worst:.3} %, CI covers {covered}/{} (widest ±{widest:.2} %), NRMSE {:.4}, Ljung-Box Q {:.1}",
+        "{head}: max |error| {worst:.3} %, CI covers {covered}/{}{missed} (widest ±{widest:.2} %), joint Mahalanobis² {d2:.2} of {limit:.2}, NRMSE {:.4}, Ljung-Box Q {:.1}",
         truth.n_params(),
         fit.nrmse,
         fit.whiteness.ljung_box_q
@@ -353,6 +387,48 @@ fn check(label: &str, fit: &RecordingFit, truth: &PronySeries) -> Result<String,
         Ok(line)
     } else {
         Err(format!("{line}\n    {}", fails.join("\n    ")))
+    }
+}
+
+/// Squared Mahalanobis distance of the truth from the estimate, in the coordinates the
+/// intervals were built in (log-parameters for log fits).
+fn mahalanobis2(est: &viscoprobe_core::estimate::Estimate, truth: &PronySeries) -> f64 {
+    let (diff, cov) = match &est.log_covariance {
+        Some(l) => (
+            truth
+                .to_vec()
+                .iter()
+                .zip(est.values())
+                .map(|(w, e)| e.ln() - w.ln())
+                .collect::<Vec<_>>(),
+            l.clone(),
+        ),
+        None => (
+            truth
+                .to_vec()
+                .iter()
+                .zip(est.values())
+                .map(|(w, e)| e - w)
+                .collect(),
+            est.covariance.clone(),
+        ),
+    };
+    let d = nalgebra::DVector::from_vec(diff);
+    match cov.cholesky() {
+        Some(c) => d.dot(&c.solve(&d)),
+        None => f64::INFINITY,
+    }
+}
+
+/// The 95 % quantile of χ² with `k` degrees of freedom (Prony parameter counts 3 to 11).
+fn chi2_95(k: usize) -> f64 {
+    match k {
+        3 => 7.815,
+        5 => 11.070,
+        7 => 14.067,
+        9 => 16.919,
+        11 => 19.675,
+        _ => panic!("no χ² quantile tabulated for {k} parameters"),
     }
 }
 
@@ -412,19 +488,11 @@ fn three_term_multisine() {
 }
 
 #[test]
-#[ignore = "measured: tau3 6.053e-3 (+0.88 %), 95 % interval [6.0046e-3, 6.1015e-3] just above the truth; \
-            seeds 2-21 of the same case give tau3 z-scores of mean -0.2 and rms 0.9, and 9 of \
-            all 140 intervals missing (95 % marginal intervals on 7 parameters leave one out in \
-            5 of the 20 records): no bias; the twin's seed-1 noise, shared by creep and \
-            relaxation, lands tau3 2.1 sigma high"]
 fn three_term_creep() {
     twin_case(1, Excitation::Creep);
 }
 
 #[test]
-#[ignore = "measured: tau3 6.058e-3 (+0.97 %), 95 % interval [6.0015e-3, 6.1157e-3] just above the truth; \
-            seeds 2-7 of the same case give tau3 z-scores +1.3 +0.7 +0.3 -1.4 -1.2 +0.8 (no bias); \
-            the twin's seed-1 noise, shared with the creep case, lands tau3 2.1 sigma high there too"]
 fn three_term_relaxation() {
     twin_case(1, Excitation::Relaxation);
 }
@@ -484,13 +552,11 @@ fn third_party_recordings_fit_the_same_way() {
     assert!(failures.is_empty(), "\n{}", failures.join("\n"));
 }
 
-/// Are the intervals honest? One case over 20 more seeds of the twin's noise: the 95 %
+/// Are the intervals honest? One 3-term case over 20 more seeds of the twin's noise: the 95 %
 /// intervals must cover at least 90 % of the time over all parameters, and no parameter's
 /// mean error may sit more than 0.75 of its standard error from zero (the mean of 20
-/// z-scores has a standard error of 0.22). Measured: 131 of 140 covered (93.6 %), mean
-/// z-scores -0.21 -0.48 +0.05 +0.31 +0.47 +0.28 -0.17, rms 0.94.
-#[test]
-fn three_term_creep_intervals_over_seeds() {
+/// z-scores has a standard error of 0.22). Returns (covered, total, mean z per parameter).
+fn intervals_over_seeds(exc: Excitation) -> (usize, usize, Vec<f64>) {
     let (_, m) = materials().swap_remove(1);
     let truth = m.to_vec();
     let (mut covered, mut total) = (0, 0);
@@ -498,10 +564,10 @@ fn three_term_creep_intervals_over_seeds() {
     let seeds = 2..22u64;
     let runs = (seeds.end - seeds.start) as f64;
     for seed in seeds {
-        let dir = tmp(&format!("seed{seed}"));
+        let dir = tmp(&format!("seed{seed}-{exc:?}"));
         let mut cfg = config(&m, None);
         cfg.twin.seed = seed;
-        let rec = recording(&cfg, Excitation::Creep, &dir, "rec");
+        let rec = recording(&cfg, exc, &dir, "rec");
         let _ = std::fs::remove_dir_all(&dir);
         let est = fit_recording(&rec, Terms::Fixed(3)).unwrap().estimate;
         let z: Vec<f64> = truth
@@ -517,10 +583,25 @@ fn three_term_creep_intervals_over_seeds() {
             zsum[i] += z[i];
         }
         let zs: Vec<String> = z.iter().map(|v| format!("{v:+.2}")).collect();
-        eprintln!("seed {seed}: z = {}", zs.join(" "));
+        eprintln!("{exc:?} seed {seed}: z = {}", zs.join(" "));
     }
     let mean: Vec<f64> = zsum.iter().map(|s| s / runs).collect();
-    eprintln!("covered {covered}/{total}, mean z {mean:.2?}");
+    eprintln!("{exc:?}: covered {covered}/{total}, mean z {mean:.2?}");
     assert!(covered as f64 >= 0.9 * total as f64, "{covered}/{total}");
     assert!(mean.iter().all(|z| z.abs() < 0.75), "{mean:?}");
+    (covered, total, mean)
+}
+
+/// Measured: 131 of 140 covered (93.6 %), mean z-scores -0.21 -0.48 +0.05 +0.31 +0.47 +0.28
+/// -0.17.
+#[test]
+fn three_term_creep_intervals_over_seeds() {
+    intervals_over_seeds(Excitation::Creep);
+}
+
+/// Measured: 131 of 140 covered (93.6 %), mean z-scores -0.31 -0.56 -0.08 +0.32 +0.48 +0.37
+/// -0.07 (the same noise seeds as the creep study, so the two are not independent).
+#[test]
+fn three_term_relaxation_intervals_over_seeds() {
+    intervals_over_seeds(Excitation::Relaxation);
 }
