@@ -376,9 +376,26 @@ pub fn diagnose_with(
         crate::recording::Tip::Cone { half_angle_deg } => TipConfig::Cone { half_angle_deg },
     };
     let block = (n / 60).max(20);
+    // The block grid is anchored in the middle of the adhesive pull — from where the force
+    // turns tensile on the retract to the most negative deflection, where the tip lets go —
+    // so that a single event like the pull-off lies half in a training block and half in a
+    // held-out one. Left to chance, the whole event sat in one block, and a real adhesion
+    // then either won on training data alone or on held-out data alone and was refused
+    // either way (found by an independent simulator). Without adhesion the anchor is just
+    // some sample, and any grid is as good as another.
+    let anchor = {
+        let kmin = y
+            .iter()
+            .enumerate()
+            .min_by(|a, b| a.1.total_cmp(b.1))
+            .map_or(0, |(k, _)| k);
+        let tensile_from = y[..kmin].iter().rposition(|&v| v >= base).unwrap_or(kmin);
+        (tensile_from + kmin) / 2
+    };
+    let shift = 3 * block - anchor % (3 * block) + block;
     let (mut train, mut held) = (vec![], vec![]);
     for k in 0..n {
-        if (k / block) % 3 == 1 {
+        if ((k + shift) / block) % 3 == 1 {
             held.push(k);
         } else {
             train.push(k);
