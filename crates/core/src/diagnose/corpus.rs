@@ -18,39 +18,36 @@
 //! the full twin configuration) in `[truth]`.
 //!
 //! **Sizing rule.** An effect is never sized by trying a detector. The same seed is simulated
-//! with and without the effect, with the same noise realisation, so the noise cancels in the
-//! difference. From that difference the part the nominal twin could absorb is removed: its
-//! projection on the nominal model's tangent space ([`nominal_basis`]: how the deflection moves
-//! with gain, contact point, the compliances and retardation times, and the offset). What is
-//! left is what no nominal refit can explain — the *visible* size of the effect. (A first
-//! version sized the raw difference; hysteresis, creep, detector nonlinearity and a substrate
-//! then hid almost entirely inside a slightly different gain or modulus, which is not a
-//! mismatch at all.) The effect's parameter is scaled (a bracketed search on a log scale) until
-//! the RMS of the visible difference over the whole record is a chosen multiple of the
-//! white-noise σ. Exceptions, recorded in each case's [`EffectSize::note`] (the numbers below
-//! were measured for the raw rule; `print_corpus` lists the current ones):
-//! - `missing_relaxation` and `substrate_effect` may stay *below* the target: a third term is
-//!   bounded (the instantaneous compliance must stay positive) and a film cannot be thinner
-//!   than 150 nm here; a fast third term and a substrate are largely absorbable.
-//! - `tip_geometry` is not continuous: the true tip is a cone while the sidecar declares the
-//!   nominal sphere. Its half angle is chosen by the rule when a cone can come that close to
-//!   the sphere; otherwise the half angle that minimises the difference is used and the larger
-//!   multiple it gives is reported. With this protocol no cone comes closer than about 5–6 σ
-//!   (the best half angle is about 83°: a 1 µm sphere 60 nm deep is blunt).
+//! with and without the effect, noise-free, and the nominal twin (gain, contact point, the
+//! two-term material, the offset) is refitted to the with-effect deflection
+//! ([`NominalRefit`]). What the refit leaves is what no nominal model can explain — the
+//! *visible* size of the effect. The effect's parameter is scaled until the RMS of that
+//! remainder over the whole record is a chosen multiple of the white-noise σ. (A first
+//! version sized the raw difference, and hysteresis, creep and a substrate hid almost
+//! entirely inside a slightly different gain or modulus; a second removed only the nominal
+//! model's tangent space ([`nominal_basis`]), and a fast third term sized at 1.25 σ that way
+//! left 0.53 σ after a real refit. The tangent space still drives the cheap inner search.)
+//! Because the held-out NRMSE includes the noise, an effect whose visible size is m σ can
+//! improve it by at most `1 − 1/√(1 + m²)`: 29 % at 1 σ, 36 % at 1.2 σ. Exceptions, recorded
+//! in each case's [`EffectSize::note`] (`print_corpus` lists them):
+//! - Effects bounded by physics — a third Prony term (the instantaneous compliance must stay
+//!   positive), a film on a substrate (no thinner than 150 nm here), a cone instead of the
+//!   declared sphere (no blunter than 89°), and a drag or creep at the end of its range —
+//!   reach their target through a quieter detector instead: the case's white noise is
+//!   lowered until the bounded effect's visible size is the target multiple. "Near the
+//!   floor" is a ratio; a quieter instrument sees the same physics better.
 //! - `instrument_resonance` is sized by its frequency (quality factor 3–20 per seed; the
 //!   scanner's mode on odd seeds, the lever's first mode on even ones): a mode lower in the
-//!   band acts more. The multisine's top line is at 800 Hz, so even a mode at 1.9 kHz (kept
-//!   below Nyquist) changes the response by about 3.5–4.5 σ; the mode stays there and the larger
-//!   multiple is reported.
+//!   band acts more. Where even a mode at 1.9 kHz (kept below Nyquist) exceeds the target,
+//!   the mode stays there and the larger multiple is reported.
 //! - `adhesion` and `mains_interference` follow the rule as they are: adhesion's difference
 //!   is concentrated at the pull-off but also lowers the deflection slightly over the whole
 //!   contact (DMT load); the mains amplitude is √2 · multiple · σ.
-//! - Effects bounded by physics (a third Prony term cannot make the instantaneous compliance
-//!   negative) stop at their bound, and the reached multiple is reported.
 //!
 //! **Case kinds** ([`CaseKind`]):
-//! - `NearFloor`: one effect at 0.7–1.5 σ (drawn per seed and effect), every catalog id on every
-//!   seed.
+//! - `NearFloor`: one effect at 1.2–1.8 σ (drawn per seed and effect), every catalog id on every
+//!   seed: about the noise's own size, so invisible in the trace, yet large enough that the
+//!   30 % NRMSE improvement the acceptance asks for is possible at all.
 //! - `Masked`: one effect at about 2 σ behind a look-alike that the nominal model does contain:
 //!   hysteresis behind a strongly lossy material; a channel delay behind a 1 ms retardation
 //!   time; piezo creep behind a slow (0.5–1 s) material term, the material still of order two;
@@ -64,9 +61,9 @@
 //! - `Null`: no effect: white noise only, or white plus 1/f detector noise of the same size.
 //!
 //! [`concealed_corpus`] spreads the masked kinds and the pairs over the seeds; three seeds give
-//! 59 cases (36 near-floor, 10 masked, 7 pairs, 6 nulls), generated in about 3–5 s in release
-//! on this machine (the twin runs at several million samples per second and each size search
-//! takes 5–10 simulations). Each [`CorpusCase`] also carries the `baseline` twin (the case
+//! 59 cases (36 near-floor, 10 masked, 7 pairs, 6 nulls), generated in about 40–75 s in
+//! release on this machine (each nominal refit takes tens of simulations, and each effect
+//! two to four refits). Each [`CorpusCase`] also carries the `baseline` twin (the case
 //! without its effects, look-alikes and noise kept), so a test or a bench can reproduce the
 //! difference. Everything is pure computation, seeded by the caller: the same seeds give
 //! bit-identical recordings.
@@ -105,7 +102,7 @@ const N_LINES: usize = 24;
 /// How an effect is concealed in a case.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum CaseKind {
-    /// One effect near the noise floor (0.7–1.5 σ).
+    /// One effect near the noise floor (1.2–1.8 σ).
     NearFloor,
     /// One effect at about 2 σ behind a look-alike that the nominal model contains.
     Masked,
@@ -172,7 +169,7 @@ pub struct EffectSize {
     pub scalar: f64,
     /// The multiple of σ asked for.
     pub target_multiple: f64,
-    /// RMS of the with-minus-without deflection difference over the record, in units of σ
+    /// RMS of what the nominal refit leaves of the effect over the record, in units of σ
     /// (this effect alone against the case's baseline).
     pub rms_multiple: f64,
     /// Why the reached multiple differs from the target, when it does.
@@ -195,7 +192,7 @@ pub struct CorpusCase {
     pub sizes: Vec<EffectSize>,
     /// White detector noise σ, V.
     pub noise_sigma_v: f64,
-    /// RMS of the with-minus-without difference with all effects at once, in units of σ.
+    /// RMS of what the nominal refit leaves with all effects at once, in units of σ.
     pub combined_rms_multiple: f64,
     /// What hides the effect (masked cases), in words.
     pub masker: Option<String>,
@@ -542,6 +539,133 @@ pub fn nominal_basis(base: &TwinConfig, drive_v: &[f64]) -> DMatrix<f64> {
     m.qr().q()
 }
 
+/// The same twin with its random noise switched off (every deterministic detector effect —
+/// drift, mains, cubic term, delay — kept).
+fn noise_free(twin: &TwinConfig) -> TwinConfig {
+    let mut c = twin.clone();
+    c.detector.white_noise_v = 0.0;
+    c.detector.pink_noise_v = 0.0;
+    c
+}
+
+/// A full nonlinear refit of the nominal twin to a noise-free deflection: what no choice of
+/// the nominal parameters (actuator gain, contact point, the two-term material, the deflection
+/// offset) can reproduce.
+///
+/// The tangent space of [`nominal_basis`] says what the nominal model absorbs to first order.
+/// For the effects that look most like material physics (a fast third Prony term, a film on a
+/// substrate, a cone instead of the declared sphere, a slight adhesion) the nominal model
+/// absorbs far more once its parameters move by more than a linear step: a third term sized
+/// at 1.25 σ by the tangent space left only 0.53 σ after the nominal refit, so no diagnosis
+/// could improve the held-out NRMSE by 30 % on it. The refit is Levenberg–Marquardt on
+/// log-parameters (contact point in nm) with a forward-difference Jacobian, from the nominal
+/// values; the offset is free in closed form (residual and Jacobian columns are centred).
+pub struct NominalRefit<'a> {
+    clean: TwinConfig,
+    drive: &'a [f64],
+}
+
+impl<'a> NominalRefit<'a> {
+    pub fn new(base: &TwinConfig, drive: &'a [f64]) -> Self {
+        let mut clean = base.clone();
+        clean.detector = DetectorConfig::default();
+        Self { clean, drive }
+    }
+
+    fn start(&self) -> Vec<f64> {
+        let m = &self.clean.sample.material;
+        let mut p = vec![
+            self.clean.actuator.gain_nm_per_v.ln(),
+            self.clean.sample.contact_point_nm,
+            m.j0_per_pa.ln(),
+        ];
+        for t in &m.terms {
+            p.push(t.j_per_pa.ln());
+            p.push(t.tau_s.ln());
+        }
+        p
+    }
+
+    fn twin(&self, p: &[f64]) -> TwinConfig {
+        let mut c = self.clean.clone();
+        c.actuator.gain_nm_per_v = p[0].exp();
+        c.sample.contact_point_nm = p[1];
+        c.sample.material.j0_per_pa = p[2].exp();
+        for (i, t) in c.sample.material.terms.iter_mut().enumerate() {
+            t.j_per_pa = p[3 + 2 * i].exp();
+            t.tau_s = p[4 + 2 * i].exp();
+        }
+        c
+    }
+
+    /// `target − model(p)`, centred (the free offset), or `None` when the twin diverges.
+    fn residual(&self, p: &[f64], target: &[f64]) -> Option<DVector<f64>> {
+        let d = deflection(&self.twin(p), self.drive, FS_HZ);
+        let mut r = DVector::from_iterator(d.len(), target.iter().zip(&d).map(|(t, m)| t - m));
+        let mean = r.mean();
+        r.add_scalar_mut(-mean);
+        r.iter().all(|v| v.is_finite()).then_some(r)
+    }
+
+    /// RMS of what the best nominal twin leaves of `target` (a noise-free deflection of the
+    /// same drive), V.
+    pub fn unabsorbed_rms(&self, target: &[f64]) -> f64 {
+        let n = target.len().max(1) as f64;
+        let mut p = self.start();
+        let Some(mut r) = self.residual(&p, target) else {
+            return f64::NAN;
+        };
+        let mut cost = r.norm_squared();
+        let mut lambda = 1e-3;
+        // Steps in log-parameters and nm: small enough for a derivative, large enough to rise
+        // above the twin's root-solver tolerance.
+        let steps = |k: usize| if k == 1 { 0.01 } else { 1e-4 };
+        for _ in 0..30 {
+            let cols: Vec<DVector<f64>> = (0..p.len())
+                .filter_map(|k| {
+                    let mut q = p.clone();
+                    q[k] += steps(k);
+                    self.residual(&q, target).map(|rk| (&r - rk) / steps(k))
+                })
+                .collect();
+            if cols.len() != p.len() {
+                break;
+            }
+            let j = DMatrix::from_columns(&cols);
+            let jtj = j.transpose() * &j;
+            let g = j.transpose() * &r;
+            let mut improved = false;
+            for _ in 0..6 {
+                let mut a = jtj.clone();
+                for k in 0..p.len() {
+                    a[(k, k)] *= 1.0 + lambda;
+                }
+                let Some(step) = a.cholesky().map(|c| c.solve(&g)) else {
+                    lambda *= 10.0;
+                    continue;
+                };
+                let trial: Vec<f64> = p.iter().zip(step.iter()).map(|(a, b)| a + b).collect();
+                match self.residual(&trial, target) {
+                    Some(rt) if rt.norm_squared() < cost => {
+                        let gain = 1.0 - rt.norm_squared() / cost;
+                        p = trial;
+                        r = rt;
+                        cost = r.norm_squared();
+                        lambda = (lambda / 5.0).max(1e-9);
+                        improved = gain > 1e-6;
+                        break;
+                    }
+                    _ => lambda *= 8.0,
+                }
+            }
+            if !improved {
+                break;
+            }
+        }
+        (cost / n).sqrt()
+    }
+}
+
 // ---------------------------------------------------------------------------------------------
 // Effects and their sizing
 
@@ -789,17 +913,89 @@ struct Sizer<'a> {
     drive: &'a [f64],
     sigma: f64,
     q: &'a DMatrix<f64>,
+    refit: &'a NominalRefit<'a>,
 }
 
 impl Sizer<'_> {
+    /// What a full nominal refit leaves of the effect at size `p`, in units of σ.
+    fn visible(&self, k: &Knob, p: f64) -> f64 {
+        let mut c = noise_free(self.base);
+        k.put(&mut c, p);
+        self.refit
+            .unabsorbed_rms(&deflection(&c, self.drive, FS_HZ))
+            / self.sigma
+    }
+
+    /// Sizes by what the nominal refit leaves ([`NominalRefit`]). The search itself runs on the
+    /// tangent-space multiple, which is cheap (one simulation per trial); its target is then
+    /// corrected by the ratio of the refit's multiple to it, until the refit's multiple is
+    /// within 4 % of the target (two or three refits), or the knob stops at a bound.
+    fn size(&mut self, k: &Knob, target: f64) -> EffectSize {
+        let close = |m: f64| (m / target - 1.0).abs() < 0.04;
+        let mut tangent_target = target;
+        let mut s = self.size_tangent(k, tangent_target);
+        let mut m = self.visible(k, s.scalar);
+        // (scalar, visible multiple) on each side of the target, for the bracketed finish.
+        let mut below: Option<(f64, f64)> = None;
+        let mut above: Option<(f64, f64)> = None;
+        for round in 0..8 {
+            if close(m) || m.is_nan() || m <= 0.0 {
+                break;
+            }
+            if m < target {
+                below = Some((s.scalar, m));
+            } else {
+                above = Some((s.scalar, m));
+            }
+            let next = match (below, above) {
+                // The refit's multiple can grow much faster than the tangent one (a cubic
+                // term the refit absorbs while small): once the target is bracketed, the
+                // finish interpolates the refit's own multiple, log–log, between the sides.
+                (Some((pb, mb)), Some((pa, ma))) if round > 0 => {
+                    let w = (target.ln() - mb.ln()) / (ma.ln() - mb.ln());
+                    let p = (pb.ln() + w * (pa.ln() - pb.ln())).exp();
+                    self.at(k, p, s.note.clone())
+                }
+                _ => {
+                    tangent_target *= target / m;
+                    self.size_tangent(k, tangent_target)
+                }
+            };
+            if next.scalar == s.scalar {
+                // Stuck at a bound of the knob's range.
+                break;
+            }
+            s = next;
+            m = self.visible(k, s.scalar);
+        }
+        s.target_multiple = target;
+        s.rms_multiple = m;
+        s
+    }
+
+    /// The effect at size `p`, as a size record (multiples filled in by the caller).
+    fn at(&self, k: &Knob, p: f64, note: Option<String>) -> EffectSize {
+        let mut c = self.base.clone();
+        EffectSize {
+            id: k.id,
+            params: k.put(&mut c, p),
+            scalar: p,
+            target_multiple: f64::NAN,
+            rms_multiple: f64::NAN,
+            note,
+        }
+    }
+
+    /// The tangent-space multiple at size `p`: one simulation.
     fn multiple(&mut self, k: &Knob, p: f64) -> f64 {
         let mut c = self.base.clone();
         k.put(&mut c, p);
         rms_diff(&deflection(&c, self.drive, FS_HZ), self.base_defl, self.q) / self.sigma
     }
 
-    /// Bracketed search (Illinois false position) in log p, log multiple.
-    fn size(&mut self, k: &Knob, target: f64) -> EffectSize {
+    /// Bracketed search (Illinois false position) in log p, log multiple, on the tangent-space
+    /// multiple.
+    fn size_tangent(&mut self, k: &Knob, target: f64) -> EffectSize {
         if k.id == "tip_geometry" {
             return self.size_tip(k, target);
         }
@@ -962,15 +1158,17 @@ struct Plan {
 }
 
 fn build(plan: Plan, drive: &[f64], segments: &[Segment]) -> CorpusCase {
-    let sigma = plan.base.detector.white_noise_v;
+    let mut sigma = plan.base.detector.white_noise_v;
     let base_defl = deflection(&plan.base, drive, FS_HZ);
     let q = nominal_basis(&plan.base, drive);
+    let refit = NominalRefit::new(&plan.base, drive);
     let mut sizer = Sizer {
         base: &plan.base,
         base_defl: &base_defl,
         drive,
         sigma,
         q: &q,
+        refit: &refit,
     };
     let mut sizes: Vec<EffectSize> = plan
         .effects
@@ -978,6 +1176,35 @@ fn build(plan: Plan, drive: &[f64], segments: &[Segment]) -> CorpusCase {
         .map(|(k, target)| sizer.size(k, *target))
         .collect();
     let mut plan = plan;
+    // An effect bounded by physics (a third term cannot make the instantaneous compliance
+    // negative, a film cannot be thinner than the indentation, a cone cannot be blunter than
+    // flat) is brought to its target by a quieter detector instead: "near the floor" is a
+    // ratio of effect to noise, and an instrument with less noise sees the same physics
+    // better. The weakest effect of a pair sets the noise; the other then exceeds its target.
+    let shortfall = sizes
+        .iter()
+        .map(|s| s.rms_multiple / s.target_multiple)
+        .filter(|r| r.is_finite() && *r > 0.0)
+        .fold(1.0f64, f64::min);
+    if shortfall < 0.96 {
+        let quieter = sigma * shortfall;
+        for s in &mut sizes {
+            s.rms_multiple /= shortfall;
+            let why = format!(
+                "white noise lowered from {:.3} mV to {:.3} mV so the bounded effect reaches \
+                 its target",
+                sigma * 1e3,
+                quieter * 1e3
+            );
+            s.note = Some(match s.note.take() {
+                Some(n) => format!("{n}; {why}"),
+                None => why,
+            });
+        }
+        sigma = quieter;
+        plan.base.detector.white_noise_v = quieter;
+    }
+    let base_defl = deflection(&plan.base, drive, FS_HZ);
     let with_all = |effects: &[(Knob, f64)], sizes: &[EffectSize]| {
         let mut twin = plan.base.clone();
         for (size, (k, _)) in sizes.iter().zip(effects) {
@@ -1014,7 +1241,11 @@ fn build(plan: Plan, drive: &[f64], segments: &[Segment]) -> CorpusCase {
     }
     let declared = plan.base.tip;
     let mut recording = simulate(&twin, drive, FS_HZ, Some(declared));
-    let combined_rms_multiple = rms_diff(&recording.deflection_v, &base_defl, &q) / sigma;
+    let combined_rms_multiple = if sizes.is_empty() {
+        0.0
+    } else {
+        refit.unabsorbed_rms(&deflection(&noise_free(&twin), drive, FS_HZ)) / sigma
+    };
     let effects: Vec<&'static str> = sizes.iter().map(|s| s.id).collect();
     recording.meta.notes = Some(notes_table(segments));
     recording.meta.truth = Some(truth_table(
@@ -1149,9 +1380,9 @@ fn case_base(seed: u64, tag: &str) -> TwinConfig {
     t
 }
 
-/// Near-floor multiple for an effect and seed, 0.7–1.5.
+/// Near-floor multiple for an effect and seed, 1.2–1.8.
 fn near_floor_multiple(seed: u64, id: &str) -> f64 {
-    uniform(&mut rng_for(seed, &format!("{id}/multiple")), 0.7, 1.5)
+    uniform(&mut rng_for(seed, &format!("{id}/multiple")), 1.2, 1.8)
 }
 
 fn near_floor_plans(seed: u64) -> Vec<Plan> {
@@ -1598,52 +1829,40 @@ mod tests {
         assert_eq!(seeds.len(), corpus().len());
     }
 
-    /// The with-minus-without RMS, recomputed from the recording and the baseline, is the
-    /// intended multiple of σ (within 10 %), except for the documented exceptions, which may
-    /// only be larger than intended.
+    /// What the nominal refit leaves of the effects, recomputed from the case's twin and
+    /// baseline, is the recorded multiple of σ; a single effect sits within 10 % of its
+    /// target — the bounded ones by a quieter detector — except a mode that exceeds it even
+    /// just below Nyquist, which may only be larger.
     #[test]
     fn effects_are_sized_by_the_rule() {
         let drive = drive();
         for c in corpus().iter().filter(|c| c.kind != CaseKind::Null) {
-            let base = simulate(&c.baseline, &drive, FS_HZ, None).deflection_v;
-            let q = nominal_basis(&c.baseline, &drive);
-            let m = rms_diff(&c.recording.deflection_v, &base, &q) / c.noise_sigma_v;
+            let refit = NominalRefit::new(&c.baseline, &drive);
+            let clean = deflection(&noise_free(&c.twin), &drive, FS_HZ);
+            let m = refit.unabsorbed_rms(&clean) / c.noise_sigma_v;
             assert!(
                 (m - c.combined_rms_multiple).abs() < 1e-9 * m.max(1.0),
                 "{}",
                 c.name
             );
+            assert_eq!(c.noise_sigma_v, c.twin.detector.white_noise_v, "{}", c.name);
             if c.effects.len() == 1 {
                 let s = &c.sizes[0];
                 assert!((s.rms_multiple - m).abs() < 1e-9 * m, "{}", c.name);
-                match &s.note {
-                    None => assert!(
+                let exceeds = s.note.as_deref().is_some_and(|n| n.contains("exceeds"));
+                if exceeds && m > s.target_multiple {
+                    assert_eq!(s.id, "instrument_resonance", "{}", c.name);
+                } else {
+                    assert!(
                         (m / s.target_multiple - 1.0).abs() < 0.10,
-                        "{}: {m} σ, intended {}",
+                        "{}: {m} σ, intended {} ({:?})",
                         c.name,
-                        s.target_multiple
-                    ),
-                    Some(note) if note.contains("bound") || note.contains("below the target") => {
-                        // Bounded by physics or by the knob's range (a third term cannot make
-                        // the instantaneous compliance negative; a film cannot be thinner than
-                        // the indentation): the visible size stays below the target.
-                        assert!(m < s.target_multiple, "{}", c.name);
-                    }
-                    Some(note) if s.id == "tip_geometry" => {
-                        // Not continuous: the cone closest to the rule, on either side of it.
-                        assert!((0.1..10.0).contains(&m), "{}: {m} ({note})", c.name);
-                    }
-                    Some(note) => {
-                        assert!(
-                            s.id == "instrument_resonance",
-                            "{}: unexpected exception {note}",
-                            c.name
-                        );
-                        assert!(m > s.target_multiple, "{}", c.name);
-                    }
+                        s.target_multiple,
+                        s.note
+                    );
                 }
-                if c.kind == CaseKind::NearFloor && s.note.is_none() {
-                    assert!((0.6..1.6).contains(&m), "{}: {m}", c.name);
+                if c.kind == CaseKind::NearFloor && !exceeds {
+                    assert!((1.1..1.9).contains(&m), "{}: {m}", c.name);
                 }
             }
         }
