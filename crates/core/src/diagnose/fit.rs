@@ -25,7 +25,7 @@ pub struct Fitted {
 
 /// Finite-difference step in θ: θ is in log units except the contact point (in 10 nm), so
 /// 1e-4 is 0.01 % or 1 pm.
-const FD_STEP: f64 = 1e-4;
+pub(crate) const FD_STEP: f64 = 1e-4;
 
 /// Jacobian of the train residuals over the parameters `which`, by forward differences. The
 /// columns are independent simulations: `fan` may run them side by side.

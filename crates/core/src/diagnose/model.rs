@@ -319,7 +319,7 @@ pub struct Evaluation {
     pub sim: Simulation,
 }
 
-const ZC_SCALE_NM: f64 = 10.0;
+pub(crate) const ZC_SCALE_NM: f64 = 10.0;
 const CONE_HALF_ANGLE_DEG: f64 = 20.0;
 const SWAP_SPHERE_RADIUS_NM: f64 = 1000.0;
 
