@@ -990,7 +990,7 @@ impl Sizer<'_> {
         s
     }
 
-    /// The effect at size `p`, as a size record (multiples filled in by the caller).
+    /// The effect at size `p`, as a size record (multiples filled in by [`Self::size`]).
     fn at(&self, k: &Knob, p: f64, note: Option<String>) -> EffectSize {
         let mut c = self.base.clone();
         EffectSize {
@@ -1011,7 +1011,7 @@ impl Sizer<'_> {
     }
 
     /// Bracketed search (Illinois false position) in log p, log multiple, on the tangent-space
-    /// multiple.
+    /// multiple. The multiples of the returned size are [`Self::size`]'s to fill in.
     fn size_tangent(&mut self, k: &Knob, target: f64) -> EffectSize {
         if k.id == "tip_geometry" {
             return self.size_tip(k, target);
@@ -1024,19 +1024,6 @@ impl Sizer<'_> {
             fa = -fa;
             fb = -fb;
         }
-        let finish = |s: &mut Self, p: f64, note: Option<String>| {
-            let mut c = s.base.clone();
-            let params = k.put(&mut c, p);
-            let rms_multiple = s.multiple(k, p);
-            EffectSize {
-                id: k.id,
-                params,
-                scalar: p,
-                target_multiple: target,
-                rms_multiple,
-                note,
-            }
-        };
         // At an end of the range: the weakest size is too large, or the strongest too small.
         let weakest_too_large = "the weakest size in range exceeds the target: kept there";
         let strongest_too_small = "the strongest size in range stays below the target";
@@ -1046,7 +1033,7 @@ impl Sizer<'_> {
             } else {
                 strongest_too_small
             };
-            return finish(self, k.lo, Some(why.into()));
+            return self.at(k, k.lo, Some(why.into()));
         }
         if fb <= 0.0 {
             let why = match (k.id, k.increasing) {
@@ -1059,7 +1046,7 @@ impl Sizer<'_> {
                 (_, true) => strongest_too_small,
                 (_, false) => weakest_too_large,
             };
-            return finish(self, k.hi, Some(why.into()));
+            return self.at(k, k.hi, Some(why.into()));
         }
         let mut side = 0i8;
         let mut x = a;
@@ -1088,7 +1075,7 @@ impl Sizer<'_> {
                 side = 1;
             }
         }
-        finish(self, x.exp(), None)
+        self.at(k, x.exp(), None)
     }
 
     /// The cone half angle: by the rule where a cone gets that close, else the closest cone.
@@ -1148,16 +1135,7 @@ impl Sizer<'_> {
                 (0.5 * (a + b), None)
             }
         };
-        let mut c = self.base.clone();
-        let params = k.put(&mut c, p);
-        EffectSize {
-            id: k.id,
-            params,
-            scalar: p,
-            target_multiple: target,
-            rms_multiple: self.multiple(k, p),
-            note,
-        }
+        self.at(k, p, note)
     }
 }
 
@@ -1176,7 +1154,7 @@ struct Plan {
 
 fn build(plan: Plan, drive: &[f64], segments: &[Segment]) -> CorpusCase {
     let mut sigma = plan.base.detector.white_noise_v;
-    let base_defl = deflection(&plan.base, drive, FS_HZ);
+    let mut base_defl = deflection(&plan.base, drive, FS_HZ);
     let refit = NominalRefit::new(&plan.base, drive);
     let q = refit.basis();
     let mut sizer = Sizer {
@@ -1220,8 +1198,8 @@ fn build(plan: Plan, drive: &[f64], segments: &[Segment]) -> CorpusCase {
         }
         sigma = quieter;
         plan.base.detector.white_noise_v = quieter;
+        base_defl = deflection(&plan.base, drive, FS_HZ);
     }
-    let base_defl = deflection(&plan.base, drive, FS_HZ);
     let with_all = |effects: &[(Knob, f64)], sizes: &[EffectSize]| {
         let mut twin = plan.base.clone();
         for (size, (k, _)) in sizes.iter().zip(effects) {
@@ -1258,11 +1236,8 @@ fn build(plan: Plan, drive: &[f64], segments: &[Segment]) -> CorpusCase {
     }
     let declared = plan.base.tip;
     let mut recording = simulate(&twin, drive, FS_HZ, Some(declared));
-    let combined_rms_multiple = if sizes.is_empty() {
-        0.0
-    } else {
-        refit.unabsorbed_rms(&deflection(&noise_free(&twin), drive, FS_HZ)) / sigma
-    };
+    let combined_rms_multiple =
+        refit.unabsorbed_rms(&deflection(&noise_free(&twin), drive, FS_HZ)) / sigma;
     let effects: Vec<&'static str> = sizes.iter().map(|s| s.id).collect();
     recording.meta.notes = Some(notes_table(segments));
     recording.meta.truth = Some(truth_table(
