@@ -10,13 +10,14 @@
 //! 1 − 1/√(1 + m²), which is 29 % at 1 σ (see `corpus`'s sizing rule).
 
 use viscoprobe_core::diagnose::bench::score;
-use viscoprobe_core::diagnose::corpus::concealed_corpus;
+use viscoprobe_core::diagnose::corpus::concealed_corpus_with;
 use viscoprobe_core::diagnose::{diagnose, DiagnoseOptions};
 use viscoprobe_daemon::cli::diagnose::run_corpus;
+use viscoprobe_daemon::fan::Threads;
 
 #[test]
 fn concealed_corpus_scores() {
-    let cases = concealed_corpus(&[1, 2, 3]);
+    let cases = concealed_corpus_with(&[1, 2, 3], &Threads::all_cores().unwrap());
     let outcomes = run_corpus(&cases, 2, |o, k, n| {
         eprintln!("[{k}/{n}] {} → {:?} (truth {:?})", o.name, o.top, o.truth)
     })

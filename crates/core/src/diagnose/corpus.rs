@@ -72,6 +72,7 @@ use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 use toml::{Table, Value};
 
+use super::fan::{self, Fan, Serial};
 use super::fit::FD_STEP;
 use super::model::ZC_SCALE_NM;
 use crate::estimate::lm::{solve_lazy, LmOptions};
@@ -84,6 +85,7 @@ use crate::twin::{
     CantileverConfig, Drag, ReferenceConfig, SampleConfig, TipConfig, TruthSample, Twin, TwinConfig,
 };
 use nalgebra::{DMatrix, DVector};
+use std::sync::Mutex;
 
 /// Sample rate of the corpus recordings, Hz.
 pub const FS_HZ: f64 = 4000.0;
@@ -687,7 +689,7 @@ impl<'a> NominalRefit<'a> {
 // Effects and their sizing
 
 /// Puts an effect into a configuration at a size; returns the parameters it set.
-type Apply = Box<dyn Fn(&mut TwinConfig, f64) -> Vec<(String, f64)>>;
+type Apply = Box<dyn Fn(&mut TwinConfig, f64) -> Vec<(String, f64)> + Send + Sync>;
 
 /// The knob of one effect: its shape (fixed per seed) and the scalar that sets its size.
 struct Knob {
@@ -1580,6 +1582,13 @@ fn pair_plan(seed: u64, j: usize) -> Plan {
 /// and the pairs `j` with `j ≡ i (mod 3)` (two or three pairs per seed). Three seeds give 59
 /// cases.
 pub fn concealed_corpus(seeds: &[u64]) -> Vec<CorpusCase> {
+    concealed_corpus_with(seeds, &Serial)
+}
+
+/// [`concealed_corpus`] with the cases built side by side by `fan`: each case's sizing is
+/// independent of the others' (and takes several seconds of nominal refits), and the
+/// cases come back in the same order with the same bits whatever the fan.
+pub fn concealed_corpus_with(seeds: &[u64], fan: &dyn Fan) -> Vec<CorpusCase> {
     let (drive, segments) = protocol_drive(FS_HZ);
     let mut plans = Vec::new();
     for (i, &seed) in seeds.iter().enumerate() {
@@ -1596,10 +1605,16 @@ pub fn concealed_corpus(seeds: &[u64]) -> Vec<CorpusCase> {
         );
         plans.extend(null_plans(seed));
     }
-    plans
-        .into_iter()
-        .map(|p| build(p, &drive, &segments))
-        .collect()
+    let plans: Vec<Mutex<Option<Plan>>> = plans.into_iter().map(|p| Mutex::new(Some(p))).collect();
+    fan::map(fan, plans.len(), |i| {
+        // Each job takes its own plan, exactly once (the fan's contract).
+        let plan = plans[i]
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .take()
+            .unwrap_or_else(|| panic!("corpus case {i} built twice"));
+        build(plan, &drive, &segments)
+    })
 }
 
 #[cfg(test)]

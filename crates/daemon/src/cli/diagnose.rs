@@ -11,7 +11,7 @@ use plotters::prelude::*;
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
 use viscoprobe_core::diagnose::bench::{score, CaseOutcome, Score};
-use viscoprobe_core::diagnose::corpus::{concealed_corpus, CorpusCase};
+use viscoprobe_core::diagnose::corpus::{concealed_corpus_with, CorpusCase};
 use viscoprobe_core::diagnose::{
     diagnose_with, BasePosition, DiagnoseOptions, Diagnosis, FitSummary, Weighting,
 };
@@ -573,7 +573,7 @@ pub fn run_bench(args: BenchArgs) -> anyhow::Result<()> {
         })
         .collect::<anyhow::Result<_>>()?;
     eprintln!("generating the concealed corpus for seeds {seeds:?}…");
-    let mut cases = concealed_corpus(&seeds);
+    let mut cases = concealed_corpus_with(&seeds, &Threads::all_cores()?);
     if let Some(f) = &args.filter {
         cases.retain(|c| c.name.contains(f.as_str()));
     }
