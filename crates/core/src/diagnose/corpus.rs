@@ -283,6 +283,8 @@ fn design_twin() -> TwinConfig {
             adhesion_nn: None,
             neck: None,
             thickness_nm: None,
+            surface_drift_nm_per_s: None,
+            surface_drift_curvature_nm_per_s2: None,
         },
         reference: ReferenceConfig::default(),
         detector: DetectorConfig {

@@ -99,6 +99,14 @@ pub struct SampleConfig {
     /// Thickness of a film bonded to a rigid substrate, nm (absent: half-space).
     #[serde(default)]
     pub thickness_nm: Option<f64>,
+    /// Thermal drift of the surface toward the tip, nm/s, from the moment the twin settles
+    /// (the frame and stage expanding as they warm; absent: none). It moves the contact point
+    /// for the soft sample: a drift of the tip–sample distance, not of the deflection signal.
+    #[serde(default)]
+    pub surface_drift_nm_per_s: Option<f64>,
+    /// Curvature of that drift, nm/s² (the surface moves by `v·t + c·t²`; absent: none).
+    #[serde(default)]
+    pub surface_drift_curvature_nm_per_s2: Option<f64>,
 }
 
 /// `[sample.neck]`: a soft, sticky sample does not let go at the DMT pull-off; a neck (a
@@ -249,6 +257,23 @@ impl TwinConfig {
                 });
             }
         }
+        for (key, value) in [
+            (
+                "sample.surface_drift_nm_per_s",
+                self.sample.surface_drift_nm_per_s,
+            ),
+            (
+                "sample.surface_drift_curvature_nm_per_s2",
+                self.sample.surface_drift_curvature_nm_per_s2,
+            ),
+        ] {
+            if let Some(v) = value.filter(|v| !v.is_finite()) {
+                issues.push(ConfigIssue {
+                    path: p(key),
+                    message: format!("must be a finite number (got {v})"),
+                });
+            }
+        }
         if m.j0_per_pa.is_finite() && m.instantaneous_compliance() <= 0.0 {
             issues.push(ConfigIssue {
                 path: p("sample.material"),
@@ -321,6 +346,10 @@ pub struct TruthSample {
     /// Indentation of the surface under the tip, m (0 out of contact or on the reference).
     pub indentation_m: f64,
     pub in_contact: bool,
+    /// The share of a force applied to the lever (drag) that shows as its deflection: 1 out
+    /// of contact, `K/(K + k_c)` against a sample of contact stiffness `k_c`, which takes the
+    /// rest. The diagnosis's closed-form drag regressor is the drag force times this share.
+    pub lever_share: f64,
 }
 
 /// One simulated sample.
@@ -349,9 +378,14 @@ pub struct Twin {
     last_base_nm: f64,
     /// Last contact solution (m): the warm start of the next solve.
     last_d_m: f64,
-    /// While an adhesive neck holds the tip: the tip's position (m, toward the sample from the
-    /// contact point) where the contact let go.
-    neck_from_m: Option<f64>,
+    /// Whether an adhesive neck holds the tip (the contact has let go, the neck not broken).
+    neck_holds: bool,
+    /// Samples stepped since the twin last settled: the clock of the surface drift.
+    elapsed_samples: u64,
+    /// Force on the lever besides the contact's (drag) during the current step, N.
+    external_force_n: f64,
+    /// The last contact solve's [`TruthSample::lever_share`].
+    lever_share: f64,
 }
 
 impl Twin {
@@ -373,7 +407,10 @@ impl Twin {
             fs_hz,
             last_base_nm: 0.0,
             last_d_m: 0.0,
-            neck_from_m: None,
+            neck_holds: false,
+            elapsed_samples: 0,
+            external_force_n: 0.0,
+            lever_share: 1.0,
         };
         twin.settle(0.0);
         twin
@@ -392,7 +429,9 @@ impl Twin {
         self.actuator.settle(v);
         self.material = MaterialState::new(&self.cfg.sample.material, self.fs_hz);
         self.in_contact = false;
-        self.neck_from_m = None;
+        self.neck_holds = false;
+        self.elapsed_samples = 0;
+        self.external_force_n = 0.0;
         self.last_base_nm = self.actuator.position_nm();
         let d = self.solve_contact(self.last_base_nm, false);
         if let Some(l) = self.lever.as_mut() {
@@ -406,7 +445,7 @@ impl Twin {
     pub fn select(&mut self, slot: SampleSlot) {
         self.slot = slot;
         self.in_contact = false;
-        self.neck_from_m = None;
+        self.neck_holds = false;
         self.material = MaterialState::new(&self.cfg.sample.material, self.fs_hz);
     }
 
@@ -417,14 +456,14 @@ impl Twin {
     /// Advances one sample with drive `v` volts.
     pub fn step(&mut self, v: f64) -> TwinSample {
         let base = self.actuator.step(v);
-        let d_static = self.solve_contact(base, true);
         let k = self.cfg.cantilever.spring_constant_n_per_m;
+        // Drag c·ḃ (nN) pushes on the lever like a repulsive force while approaching; in
+        // contact the sample carries part of it (the contact solve shares it out).
+        self.external_force_n = self.cfg.drag.map_or(0.0, |drag| {
+            drag.coefficient_nn_s_per_nm * (base - self.last_base_nm) * self.fs_hz * 1e-9
+        });
+        let d_static = self.solve_contact(base, true);
         let mut d = d_static;
-        if let Some(drag) = self.cfg.drag {
-            // Drag force c·ḃ (nN) deflects the lever like a repulsive force while approaching.
-            let vel = (base - self.last_base_nm) * self.fs_hz;
-            d += drag.coefficient_nn_s_per_nm * vel / k;
-        }
         self.last_base_nm = base;
         if let Some(l) = self.lever.as_mut() {
             d = l.step(d);
@@ -436,7 +475,7 @@ impl Twin {
             base + s.noise_nm * z
         });
         let surface = match self.slot {
-            SampleSlot::Soft => self.cfg.sample.contact_point_nm,
+            SampleSlot::Soft => self.soft_surface_nm(),
             SampleSlot::Reference => self.cfg.reference.contact_point_nm,
         };
         let indentation_m = if self.in_contact && self.slot == SampleSlot::Soft {
@@ -444,6 +483,7 @@ impl Twin {
         } else {
             0.0
         };
+        self.elapsed_samples += 1;
         TwinSample {
             deflection_v,
             measured_height_nm,
@@ -453,6 +493,7 @@ impl Twin {
                 force_n: k * d * 1e-9,
                 indentation_m,
                 in_contact: self.in_contact,
+                lever_share: self.lever_share,
             },
         }
     }
@@ -474,25 +515,39 @@ impl Twin {
                 };
                 if commit {
                     self.in_contact = touching;
+                    self.lever_share = if touching { 0.0 } else { 1.0 };
                 }
                 if touching {
                     d
                 } else {
-                    0.0
+                    self.external_force_n / k * 1e9
                 }
             }
             SampleSlot::Soft => self.solve_soft(base_nm, commit),
         }
     }
 
+    /// Base position at which the tip touches the soft sample now (its contact point, moved
+    /// by the surface drift), nm.
+    fn soft_surface_nm(&self) -> f64 {
+        let s = &self.cfg.sample;
+        let t = self.elapsed_samples as f64 / self.fs_hz;
+        let drift = s.surface_drift_nm_per_s.unwrap_or(0.0) * t
+            + s.surface_drift_curvature_nm_per_s2.unwrap_or(0.0) * t * t;
+        s.contact_point_nm - drift
+    }
+
     fn solve_soft(&mut self, base_nm: f64, commit: bool) -> f64 {
         let s = &self.cfg.sample;
         let k = self.cfg.cantilever.spring_constant_n_per_m;
         let f_adh_n = s.adhesion_nn.unwrap_or(0.0) * 1e-9;
+        // The contact carries the lever's force K·d, the adhesion, less any external force on
+        // the lever: K·d = F_contact − F_adh + F_ext.
+        let f_net_n = f_adh_n - self.external_force_n;
         let cf = self.contact.force_factor();
         let expo = self.contact.indentation_exponent();
         let (alpha, beta) = self.material.affine();
-        let gap_m = (base_nm - s.contact_point_nm) * 1e-9;
+        let gap_m = (base_nm - self.soft_surface_nm()) * 1e-9;
         let k_si = k; // N/m
         let corr = |h_m: f64| -> f64 {
             match (s.thickness_nm, self.cfg.tip) {
@@ -507,19 +562,20 @@ impl Twin {
                 _ => 1.0,
             }
         };
-        // g(d) = h^k − α·u(d) − β with h = gap − d, u = cf·(K·d + F_adh)/corr(h); decreasing in d.
+        // g(d) = h^k − α·u(d) − β with h = gap − d, u = cf·(K·d + F_adh − F_ext)/corr(h);
+        // decreasing in d.
         let g = |d_m: f64| -> f64 {
             let h = gap_m - d_m;
             let hk = if h > 0.0 { h.powf(expo) } else { 0.0 };
-            hk - alpha * cf * (k_si * d_m + f_adh_n) / corr(h.max(0.0)) - beta
+            hk - alpha * cf * (k_si * d_m + f_net_n) / corr(h.max(0.0)) - beta
         };
-        let d_lo = -f_adh_n / k_si;
+        let d_lo = -f_net_n / k_si;
         let touching = if self.in_contact {
             g(d_lo) >= 0.0 && gap_m - d_lo > 0.0
         } else {
             gap_m > 0.0 && gap_m.powf(expo) > beta
         };
-        let (d_m, u) = if touching {
+        let (d_m, u, share) = if touching {
             // Two or three Newton steps from the previous solution are what keep the twin far
             // faster than real time. The slope neglects the slow variation of the substrate
             // correction.
@@ -530,15 +586,18 @@ impl Twin {
             let tol = 1e-14 * (1.0 + gap_m.abs());
             let d = decreasing_root(g, slope, (d_lo, gap_m.max(d_lo)), self.last_d_m, tol, 60);
             let h = (gap_m - d).max(0.0);
-            (d, cf * (k_si * d + f_adh_n) / corr(h))
-        } else if let Some(d) = self.neck_hold(gap_m, d_lo, commit) {
-            (d, 0.0)
+            // dd/dF_ext = −(∂g/∂F_ext)/(∂g/∂d), times K.
+            let share = -alpha * cf * k_si / corr(h) / slope(d);
+            (d, cf * (k_si * d + f_net_n) / corr(h), share)
+        } else if let Some(d) = self.neck_hold(gap_m, d_lo, beta, commit) {
+            (d, 0.0, 1.0)
         } else {
-            (0.0, 0.0)
+            (self.external_force_n / k_si, 0.0, 1.0)
         };
         if commit {
+            self.lever_share = share;
             if touching {
-                self.neck_from_m = None;
+                self.neck_holds = false;
             }
             self.in_contact = touching;
             self.material.commit(u);
@@ -549,23 +608,25 @@ impl Twin {
 
     /// Deflection (m) while an adhesive neck holds the tip out of contact, or `None` when no
     /// neck holds it (none configured, the contact was not just lost, or the neck broke).
-    /// `d_lo` is the deflection at the pull-off, `-F_adh/K`.
-    fn neck_hold(&mut self, gap_m: f64, d_lo: f64, commit: bool) -> Option<f64> {
+    /// `d_lo` is the deflection at the pull-off, `-F_adh/K`; `beta` the material's memory
+    /// term, whose indentation is where the recovering surface under the tip now is.
+    fn neck_hold(&mut self, gap_m: f64, d_lo: f64, beta: f64, commit: bool) -> Option<f64> {
         let neck = self.cfg.sample.neck?;
-        let from = match self.neck_from_m {
-            Some(x) => x,
-            // The contact is being lost now: the neck starts where the tip is.
-            None if self.in_contact => gap_m - d_lo,
-            None => return None,
-        };
+        if !self.neck_holds && !self.in_contact {
+            return None;
+        }
+        // The neck is drawn from the surface, and a viscoelastic surface recovers after the
+        // contact lets go: the neck's foot rises with it (on a gel, by tens of nm while the
+        // tip retracts), so the neck stretches less than the tip's travel.
+        let foot = self.contact.indentation_from_y(beta);
         let k = self.cfg.cantilever.spring_constant_n_per_m;
         let kn = neck.stiffness_n_per_m;
-        // K·d = −F_adh − k_n·e, with the extension e = from − (gap − d): linear in d.
-        let d = (k * d_lo - kn * (from - gap_m)) / (k + kn);
-        let extension = from - (gap_m - d);
-        let holds = (0.0..=neck.length_nm * 1e-9).contains(&extension);
+        // K·d = −F_adh − k_n·e, with the extension e = foot − (gap − d): linear in d.
+        let d = (k * d_lo - kn * (foot - gap_m)) / (k + kn);
+        let extension = foot - (gap_m - d);
+        let holds = (-1e-12..=neck.length_nm * 1e-9).contains(&extension);
         if commit {
-            self.neck_from_m = holds.then_some(from);
+            self.neck_holds = holds;
         }
         holds.then_some(d)
     }

@@ -30,6 +30,8 @@ fn base_config() -> TwinConfig {
             adhesion_nn: None,
             neck: None,
             thickness_nm: None,
+            surface_drift_nm_per_s: None,
+            surface_drift_curvature_nm_per_s2: None,
         },
         reference: ReferenceConfig {
             contact_point_nm: 100.0,
