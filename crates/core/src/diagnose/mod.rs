@@ -41,7 +41,7 @@ use crate::twin::TipConfig;
 use fan::Fan;
 use fit::{fit_model, orthonormal_basis, screen, FitOptions, Fitted};
 use locate::{Location, Phase};
-use model::{Effect, ModelSpec, Problem, NOMINAL_TERMS};
+use model::{DriftForm, Effect, ModelSpec, Problem, NOMINAL_TERMS};
 use noise::NoiseModel;
 use serde::Serialize;
 use thiserror::Error;
@@ -221,8 +221,12 @@ const GROSS_MISFIT: f64 = 100.0;
 /// Where the model's base (actuator) position comes from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum BasePosition {
-    /// The drive through the actuator model (gain, and the piezo effects when added).
+    /// The drive voltage through the actuator model (gain, and the piezo effects when added).
     Drive,
+    /// `drive_nm`: the commanded displacement of a calibrated, closed-loop Z stage (the
+    /// recording format's definition). Its loop removes the piezo's creep and hysteresis, so
+    /// they are not candidates; its finite bandwidth (a resonance, a delay) remains.
+    ClosedLoopDrive,
     /// The recording's `measured_height_nm`: the stage's own sensor. The piezo effects act
     /// between the drive and that position and are not diagnosed from the deflection.
     HeightSensor,
@@ -232,8 +236,15 @@ impl BasePosition {
     pub fn id(self) -> &'static str {
         match self {
             BasePosition::Drive => "drive",
+            BasePosition::ClosedLoopDrive => "closed_loop_drive",
             BasePosition::HeightSensor => "measured_height",
         }
+    }
+
+    /// Whether the piezo's own effects (creep, hysteresis) can show between this base
+    /// position and the deflection.
+    pub fn shows_piezo_effects(self) -> bool {
+        self == BasePosition::Drive
     }
 }
 
@@ -347,6 +358,10 @@ pub fn diagnose_with(
         ),
         Drive::Nanometres(v) => (v.clone(), 1.0),
     };
+    let commanded = match rec.drive {
+        Drive::Volts(_) => BasePosition::Drive,
+        Drive::Nanometres(_) => BasePosition::ClosedLoopDrive,
+    };
     // The actuator's own position sensor, when the recording has one, is where the base
     // really was: a commanded height and the stage's position can part by micrometres (the
     // shared JPK file's commanded `height` runs backwards during its force-feedback hold).
@@ -354,7 +369,7 @@ pub fn diagnose_with(
     // between command and position, are out of this diagnosis's sight (see `base_position`).
     let (drive, gain0, base_position) = match &rec.measured_height_nm {
         Some(h) if h.iter().all(|v| v.is_finite()) => (h.clone(), 1.0, BasePosition::HeightSensor),
-        _ => (drive, gain0, BasePosition::Drive),
+        _ => (drive, gain0, commanded),
     };
     let y = rec.deflection_v.clone();
     let (contact0, base, sigma_head) = find_contact(&y)?;
@@ -501,8 +516,15 @@ pub fn diagnose_with(
     let q = orthonormal_basis(&nom.jacobian);
     let ctx = StartContext::new(&problem, &nom, &white_nom, base, &phases);
     // The candidates are independent of one another: a fan may screen them side by side.
-    let mut screened: Vec<(Effect, f64, Vec<f64>)> = fan::map(fan, Effect::ALL.len(), |k| {
-        let e = Effect::ALL[k];
+    let candidates: Vec<Effect> = Effect::ALL
+        .into_iter()
+        .filter(|e| {
+            base_position.shows_piezo_effects()
+                || !matches!(e, Effect::PiezoCreep | Effect::PiezoHysteresis)
+        })
+        .collect();
+    let mut screened: Vec<(Effect, f64, Vec<f64>)> = fan::map(fan, candidates.len(), |k| {
+        let e = candidates[k];
         let spec = ModelSpec::with(&[e]);
         let st = ctx.starts(&problem, &nom, e, fan);
         screen(&problem, &spec, &st, &q, fan).map(|(c, th)| (e, nom.eval.chi2_train - c, th))
@@ -520,7 +542,7 @@ pub fn diagnose_with(
         max_iterations: 40,
         max_step: 1.0,
     };
-    let distorted = nom.eval.chi2_train / n_tr > 1.5;
+    let distorted = nom.eval.chi2_train / n_tr > 1.2;
     let n_ho = problem.held.len() as f64;
     let mut singles: Vec<(Effect, Fitted)> = vec![];
     // Only candidates whose screening already beats the information-criterion penalty are
@@ -564,8 +586,13 @@ pub fn diagnose_with(
     }
     // The refits are independent too. Each form of a candidate (adhesion with and without a
     // neck) is fitted; the one with the lower BIC stands for the candidate.
-    let bic =
-        |f: &Fitted| f.eval.chi2_train + model::n_params(&problem, &f.spec) as f64 * n_tr.ln();
+    // The forms are told apart on every sample: a form that fits the training blocks with an
+    // event (a neck's snap-off) in the wrong place shows it on the held-out ones.
+    let bic = |f: &Fitted| {
+        f.eval.chi2_train
+            + f.eval.chi2_held
+            + model::n_params(&problem, &f.spec) as f64 * (n_tr + n_ho).ln()
+    };
     singles.extend(
         fan::map(fan, to_refit.len(), |j| {
             let (e, _, th_s) = &screened[to_refit[j]];
@@ -665,6 +692,11 @@ pub fn diagnose_with(
                 let (b, fb) = others[j];
                 let mut spec = ModelSpec::with(&[a, *b]);
                 spec.adhesion_neck = fa.spec.adhesion_neck || fb.spec.adhesion_neck;
+                spec.drift = if fa.spec.has(Effect::ThermalDrift) {
+                    fa.spec.drift
+                } else {
+                    fb.spec.drift
+                };
                 let start = combine(&spec, &fa, fb);
                 fit_model(&problem, &spec, &[start], refit_opts, fan).map(|fp| (*b, fp))
             });
@@ -971,18 +1003,27 @@ impl StartContext {
         }
     }
 
-    /// A start `th` of a model without a neck, extended to the form `spec` (the neck's length
-    /// and stiffness inserted after the pull-off force when `spec` has a neck).
+    /// A start `th` of the plain form of `spec`'s effects, extended to the form `spec`: an
+    /// adhesive neck's length and stiffness after the pull-off force, a surface drift of zero
+    /// (rate and curvature) for thermal drift. A `th` that is not of the plain form is returned as it is.
     fn extend(&self, problem: &Problem, spec: &ModelSpec, th: &[f64]) -> Vec<f64> {
-        let mut t = th.to_vec();
-        if let Some(o) = spec
-            .offset_of(Effect::Adhesion)
-            .filter(|_| spec.adhesion_neck)
-        {
-            if t.len() < spec.n_nonlinear() {
-                let length = self.neck_travel_nm.max(1.0);
-                let stiffness = 0.02 * problem.spring_constant_n_per_m;
-                t.splice(o + 1..o + 1, [length.ln(), stiffness.ln()]);
+        let plain = ModelSpec::with(&spec.effects);
+        if th.len() != plain.n_nonlinear() {
+            return th.to_vec();
+        }
+        let mut t = th[..plain.n_nominal()].to_vec();
+        for &e in &spec.effects {
+            if let Some(o) = plain.offset_of(e) {
+                t.extend_from_slice(&th[o..o + plain.params_of(e).len()]);
+            }
+            match e {
+                Effect::Adhesion if spec.adhesion_neck => {
+                    let length = self.neck_travel_nm.max(1.0);
+                    let stiffness = 0.02 * problem.spring_constant_n_per_m;
+                    t.extend([length.ln(), stiffness.ln()]);
+                }
+                Effect::ThermalDrift if spec.drift == DriftForm::Surface => t.extend([0.0, 0.0]),
+                _ => {}
             }
         }
         t

@@ -75,7 +75,9 @@ impl Effect {
                 "rate-independent hysteresis of the piezo actuator (Bouc–Wen)"
             }
             Effect::PiezoCreep => "creep of the piezo actuator after a voltage change",
-            Effect::ThermalDrift => "thermal drift of the deflection signal",
+            Effect::ThermalDrift => {
+                "thermal drift of the deflection signal, and of the surface height when it shows"
+            }
             Effect::MissingRelaxation => "a retardation time the nominal Prony series lacks",
             Effect::InstrumentResonance => {
                 "a resonance within the band (a scanner mode; in contact a cantilever mode looks the same)"
@@ -138,9 +140,16 @@ impl Effect {
     }
 
     /// Names and units of the linear (closed-form) coefficients.
-    fn linear_names(self, mains_hz: f64) -> Vec<(String, &'static str)> {
+    fn linear_names(self, spec: &ModelSpec, mains_hz: f64) -> Vec<(String, &'static str)> {
         match self {
-            Effect::ThermalDrift => vec![("drift_v_per_s".into(), "V/s")],
+            Effect::ThermalDrift => match spec.drift {
+                DriftForm::Deflection => vec![("drift_v_per_s".into(), "V/s")],
+                DriftForm::CurvedDeflection => vec![
+                    ("drift_v_per_s".into(), "V/s"),
+                    ("drift_curvature_v_per_s2".into(), "V/s²"),
+                ],
+                DriftForm::Surface => vec![],
+            },
             Effect::MainsInterference => vec![
                 (format!("cos_{mains_hz:.0}hz_v"), "V"),
                 (format!("sin_{mains_hz:.0}hz_v"), "V"),
@@ -165,6 +174,23 @@ pub struct ModelSpec {
     /// parameters: the neck's length and stiffness). Fitted beside the plain DMT pull-off
     /// and kept when it wins on the information criterion.
     pub adhesion_neck: bool,
+    /// What `thermal_drift` moves, and how.
+    pub drift: DriftForm,
+}
+
+/// The forms of `thermal_drift`. Real thermal drift shifts the tip–sample distance at least
+/// as often as the detector's zero; the deflection a surface drift causes follows the
+/// contact's stiffness, which no ramp of the deflection can mimic. A warming instrument
+/// settles, so a drift may curve (quadratic in time).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum DriftForm {
+    /// The deflection signal drifts linearly (one closed-form coefficient).
+    #[default]
+    Deflection,
+    /// The deflection signal drifts along a parabola (two closed-form coefficients).
+    CurvedDeflection,
+    /// The surface height drifts along a parabola (rate and curvature, fitted in the twin).
+    Surface,
 }
 
 /// The parameters `adhesion` has with a neck.
@@ -173,6 +199,17 @@ const ADHESION_NECK_NAMES: &[(&str, &str)] = &[
     ("neck_length_nm", "nm"),
     ("neck_stiffness_n_per_m", "N/m"),
 ];
+
+/// The parameter `thermal_drift` has with a drifting surface (signed: positive toward the
+/// tip), fitted in units of [`SURFACE_DRIFT_SCALE_NM_PER_S`].
+const SURFACE_DRIFT_NAMES: &[(&str, &str)] = &[
+    ("surface_drift_nm_per_s", "nm/s"),
+    ("surface_drift_curvature_nm_per_s2", "nm/s²"),
+];
+
+/// θ unit of the surface drift (and, per second, of its curvature): a signed rate has no
+/// logarithm, and 1 nm/s is the size of a warming instrument's drift.
+pub(crate) const SURFACE_DRIFT_SCALE_NM_PER_S: f64 = 1.0;
 
 /// Prony terms of the nominal material. The nominal twin is the simplest model that describes
 /// a viscoelastic indentation across a broadband record; a third time constant is a catalog
@@ -191,26 +228,40 @@ impl ModelSpec {
         Self {
             effects: e,
             adhesion_neck: false,
+            drift: DriftForm::Deflection,
         }
     }
 
-    /// The forms of this model worth fitting apart: adhesion with and without a neck.
+    /// The forms of this model worth fitting apart: adhesion with and without a neck, each
+    /// form of thermal drift.
     pub fn variants(self) -> Vec<ModelSpec> {
-        if self.has(Effect::Adhesion) && !self.adhesion_neck {
-            let neck = ModelSpec {
-                adhesion_neck: true,
-                ..self.clone()
-            };
-            vec![self, neck]
-        } else {
-            vec![self]
+        let mut out = vec![self];
+        if out[0].has(Effect::Adhesion) && !out[0].adhesion_neck {
+            let necked: Vec<ModelSpec> = out
+                .iter()
+                .map(|s| ModelSpec {
+                    adhesion_neck: true,
+                    ..s.clone()
+                })
+                .collect();
+            out.extend(necked);
         }
+        if out[0].has(Effect::ThermalDrift) && out[0].drift == DriftForm::Deflection {
+            let drifting: Vec<ModelSpec> = [DriftForm::CurvedDeflection, DriftForm::Surface]
+                .iter()
+                .flat_map(|&drift| out.iter().map(move |s| ModelSpec { drift, ..s.clone() }))
+                .collect();
+            out.extend(drifting);
+        }
+        out
     }
 
     /// Names and units of effect `e`'s nonlinear parameters in this model, in θ order.
     pub fn params_of(&self, e: Effect) -> &'static [(&'static str, &'static str)] {
         if e == Effect::Adhesion && self.adhesion_neck {
             ADHESION_NECK_NAMES
+        } else if e == Effect::ThermalDrift && self.drift == DriftForm::Surface {
+            SURFACE_DRIFT_NAMES
         } else {
             e.nonlinear_names()
         }
@@ -287,7 +338,7 @@ pub struct Problem {
     /// Lowest frequency at which the noise floor was measured, Hz.
     pub floor_from_hz: f64,
     /// Offset, time and mains columns, raw and whitened (see `fixed_columns`); leave empty.
-    pub fixed_columns: std::sync::OnceLock<[(Vec<f64>, Vec<f64>); 4]>,
+    pub fixed_columns: std::sync::OnceLock<[(Vec<f64>, Vec<f64>); 5]>,
     /// Twin simulations run so far (the cost of a diagnosis); leave at zero.
     pub simulations: std::sync::atomic::AtomicUsize,
 }
@@ -301,6 +352,8 @@ pub struct Simulation {
     pub base_nm: Vec<f64>,
     /// Indentation, m.
     pub indentation_m: Vec<f64>,
+    /// Share of a force on the lever that shows as deflection (see `TruthSample::lever_share`).
+    pub lever_share: Vec<f64>,
 }
 
 /// One evaluated model.
@@ -452,6 +505,14 @@ impl Problem {
                         stiffness_n_per_m: k.exp(),
                     }),
                 thickness_nm: p(Effect::SubstrateEffect, 0).map(f64::exp),
+                surface_drift_nm_per_s: (spec.drift == DriftForm::Surface)
+                    .then(|| p(Effect::ThermalDrift, 0))
+                    .flatten()
+                    .map(|x| x * SURFACE_DRIFT_SCALE_NM_PER_S),
+                surface_drift_curvature_nm_per_s2: (spec.drift == DriftForm::Surface)
+                    .then(|| p(Effect::ThermalDrift, 1))
+                    .flatten()
+                    .map(|x| x * SURFACE_DRIFT_SCALE_NM_PER_S),
             },
             reference: ReferenceConfig::default(),
             detector,
@@ -479,6 +540,7 @@ impl Problem {
             clean_v: Vec::with_capacity(n),
             base_nm: Vec::with_capacity(n),
             indentation_m: Vec::with_capacity(n),
+            lever_share: Vec::with_capacity(n),
         };
         for &d in &self.drive {
             let s = twin.step(d);
@@ -488,14 +550,16 @@ impl Problem {
             sim.clean_v.push(s.deflection_v);
             sim.base_nm.push(s.truth.base_nm);
             sim.indentation_m.push(s.truth.indentation_m);
+            sim.lever_share.push(s.truth.lever_share);
         }
         Some(sim)
     }
 
-    /// The regressors that do not depend on the model (offset, time, mains cosine and sine),
+    /// The regressors that do not depend on the model (offset, time, mains cosine and sine,
+    /// time squared),
     /// raw and whitened, computed on first use: every evaluation needs them, whitening them
     /// each time would cost as much as a fifth of a twin simulation.
-    fn fixed_columns(&self) -> &[(Vec<f64>, Vec<f64>); 4] {
+    fn fixed_columns(&self) -> &[(Vec<f64>, Vec<f64>); 5] {
         self.fixed_columns.get_or_init(|| {
             let w = 2.0 * std::f64::consts::PI * self.mains_hz;
             let col = |c: Vec<f64>| {
@@ -507,6 +571,7 @@ impl Problem {
                 col(self.t_s.clone()),
                 col(self.t_s.iter().map(|t| (w * t).cos()).collect()),
                 col(self.t_s.iter().map(|t| (w * t).sin()).collect()),
+                col(self.t_s.iter().map(|t| t * t).collect()),
             ]
         })
     }
@@ -528,22 +593,32 @@ impl Problem {
         let mut cols = vec![borrowed(0)];
         for &e in &spec.effects {
             match e {
-                Effect::ThermalDrift => cols.push(borrowed(1)),
+                Effect::ThermalDrift => match spec.drift {
+                    DriftForm::Deflection => cols.push(borrowed(1)),
+                    DriftForm::CurvedDeflection => {
+                        cols.push(borrowed(1));
+                        cols.push(borrowed(4));
+                    }
+                    DriftForm::Surface => {}
+                },
                 Effect::MainsInterference => {
                     cols.push(borrowed(2));
                     cols.push(borrowed(3));
                 }
                 Effect::HydrodynamicDrag => {
-                    // The twin's drag: c·ḃ/K nm of deflection, i.e. c·ḃ/(K·C) V.
+                    // The twin's drag: a force c·ḃ on the lever, which shows as c·ḃ·s/K nm
+                    // of deflection (s: the lever's share of it, 1 when free), i.e.
+                    // c·ḃ·s/(K·C) V; exact to first order in c.
                     let kc = self.spring_constant_n_per_m * self.sensitivity_nm_per_v;
-                    let mut col: Vec<f64> = std::iter::once(0.0)
-                        .chain(
-                            sim.base_nm
-                                .windows(2)
-                                .map(|w| (w[1] - w[0]) * self.fs_hz / kc),
-                        )
+                    let b = &sim.base_nm;
+                    let n = b.len();
+                    let col: Vec<f64> = (0..n)
+                        .map(|i| {
+                            let (lo, hi) = (i.saturating_sub(1), (i + 1).min(n - 1));
+                            let v = (b[hi] - b[lo]) * self.fs_hz / (hi - lo).max(1) as f64;
+                            v * sim.lever_share[i] / kc
+                        })
                         .collect();
-                    col[0] = col.get(1).copied().unwrap_or(0.0);
                     cols.push(owned(col));
                 }
                 Effect::DetectorNonlinearity => {
@@ -688,7 +763,11 @@ impl Problem {
             let names = spec.params_of(effect);
             for (i, (name, unit)) in names.iter().enumerate() {
                 let (x, s) = (th[o + i], sd.get(o + i).copied().unwrap_or(f64::NAN));
-                let (v, ci) = if effect == Effect::PiezoHysteresis && i == 2 {
+                let (v, ci) = if effect == Effect::ThermalDrift {
+                    // The surface drift is signed and fitted on a linear scale.
+                    let k = SURFACE_DRIFT_SCALE_NM_PER_S;
+                    (k * x, [k * (x - 1.96 * s), k * (x + 1.96 * s)])
+                } else if effect == Effect::PiezoHysteresis && i == 2 {
                     // γ = β·tanh(s): report γ with the interval mapped through.
                     let beta = th[o + 1].exp();
                     (
@@ -711,7 +790,7 @@ impl Problem {
         // Linear coefficients: index 0 is the offset; effects follow in spec order.
         let mut idx = 1;
         for &e in &spec.effects {
-            let names = e.linear_names(self.mains_hz);
+            let names = e.linear_names(spec, self.mains_hz);
             for (name, unit) in names {
                 if e == effect {
                     let v = linear.get(idx).copied().unwrap_or(f64::NAN);
@@ -740,7 +819,7 @@ impl Problem {
         1 + spec
             .effects
             .iter()
-            .map(|e| e.linear_names(self.mains_hz).len())
+            .map(|e| e.linear_names(spec, self.mains_hz).len())
             .sum::<usize>()
     }
 }
@@ -751,7 +830,7 @@ fn idx_of(spec: &ModelSpec, effect: Effect, mains_hz: f64) -> usize {
         if e == effect {
             return idx;
         }
-        idx += e.linear_names(mains_hz).len();
+        idx += e.linear_names(spec, mains_hz).len();
     }
     idx
 }
