@@ -447,6 +447,9 @@ fn tip_of(t: TipConfig) -> Tip {
     match t {
         TipConfig::Sphere { radius_nm } => Tip::Sphere { radius_nm },
         TipConfig::Cone { half_angle_deg } => Tip::Cone { half_angle_deg },
+        // The recording format declares spheres and cones: a blunted cone is declared by its
+        // cap, as a user who trusts the tip's nominal radius would.
+        TipConfig::BluntedCone { radius_nm, .. } => Tip::Sphere { radius_nm },
     }
 }
 

@@ -41,7 +41,7 @@ use crate::twin::TipConfig;
 use fan::Fan;
 use fit::{fit_model, orthonormal_basis, screen, FitOptions, Fitted};
 use locate::{Location, Phase};
-use model::{DriftForm, Effect, ModelSpec, Problem, NOMINAL_TERMS};
+use model::{DriftForm, Effect, ModelSpec, Problem, TipForm, NOMINAL_TERMS};
 use noise::NoiseModel;
 use serde::Serialize;
 use thiserror::Error;
@@ -609,8 +609,9 @@ pub fn diagnose_with(
             spec.variants()
                 .into_iter()
                 .filter_map(|v| {
-                    let st: Vec<Vec<f64>> =
+                    let mut st: Vec<Vec<f64>> =
                         st.iter().map(|t| ctx.extend(&problem, &v, t)).collect();
+                    st.dedup();
                     fit_model(&problem, &v, &st, refit_opts, fan)
                 })
                 .min_by(|a, b| bic(a).total_cmp(&bic(b)))
@@ -692,6 +693,11 @@ pub fn diagnose_with(
                 let (b, fb) = others[j];
                 let mut spec = ModelSpec::with(&[a, *b]);
                 spec.adhesion_neck = fa.spec.adhesion_neck || fb.spec.adhesion_neck;
+                spec.tip = if fa.spec.has(Effect::TipGeometry) {
+                    fa.spec.tip
+                } else {
+                    fb.spec.tip
+                };
                 spec.drift = if fa.spec.has(Effect::ThermalDrift) {
                     fa.spec.drift
                 } else {
@@ -934,6 +940,8 @@ struct StartContext {
     /// an adhesive neck's length.
     neck_travel_nm: f64,
     resonance_guess_hz: f64,
+    /// The nominal fit's θ: a blunted tip starts from it, not from the swapped tip's start.
+    nominal_theta: Vec<f64>,
 }
 
 impl StartContext {
@@ -1000,6 +1008,7 @@ impl StartContext {
             pull_off_nn: pull,
             neck_travel_nm,
             resonance_guess_hz: guess.min(0.45 * fs),
+            nominal_theta: nom.theta.clone(),
         }
     }
 
@@ -1023,7 +1032,44 @@ impl StartContext {
                     t.extend([length.ln(), stiffness.ln()]);
                 }
                 Effect::ThermalDrift if spec.drift == DriftForm::Surface => t.extend([0.0, 0.0]),
+                Effect::TipGeometry if spec.tip == TipForm::Blunted => {
+                    // From the nominal fit, its compliances rescaled to the same force at the
+                    // deepest indentation, blunted at a third of that depth.
+                    let depth = 0.3 * self.max_indentation_nm;
+                    let nominal = self.nominal_theta.clone();
+                    let mut at = ModelSpec::with(&spec.effects);
+                    at.tip = TipForm::Blunted;
+                    let mut full = nominal.clone();
+                    full.push(depth.ln());
+                    let rescaled = self.same_force(problem, &nominal, &at, &full);
+                    let n_nom = plain.n_nominal();
+                    t[..n_nom].copy_from_slice(&rescaled[..n_nom]);
+                    t.push(depth.ln());
+                }
                 _ => {}
+            }
+        }
+        t
+    }
+
+    /// The nominal θ `base` with every compliance rescaled so that the tip of `spec` at `th`
+    /// carries the nominal tip's force at the deepest indentation.
+    fn same_force(
+        &self,
+        problem: &Problem,
+        base: &[f64],
+        spec: &ModelSpec,
+        th: &[f64],
+    ) -> Vec<f64> {
+        let c_old = problem.twin_config(&ModelSpec::nominal(), base).contact();
+        let c_new = problem.twin_config(spec, th).contact();
+        let h = self.max_indentation_nm * 1e-9;
+        let s = c_new.y_from_indentation(h) / c_old.y_from_indentation(h) * c_old.force_factor()
+            / c_new.force_factor();
+        let mut t = base.to_vec();
+        if s.is_finite() && s > 0.0 {
+            for v in t[2..3 + NOMINAL_TERMS].iter_mut() {
+                *v += s.ln();
             }
         }
         t
@@ -1099,21 +1145,8 @@ impl StartContext {
                 .map(|&d: &f64| with(&[d.ln()]))
                 .collect(),
             Effect::TipGeometry => {
-                // Same force at the deepest indentation: rescale every compliance.
                 let spec_new = ModelSpec::with(&[Effect::TipGeometry]);
-                let c_old = problem.twin_config(&ModelSpec::nominal(), &base).contact();
-                let c_new = problem.twin_config(&spec_new, &base).contact();
-                let h = self.max_indentation_nm * 1e-9;
-                let s = h.powf(c_new.indentation_exponent() - c_old.indentation_exponent())
-                    * c_old.force_factor()
-                    / c_new.force_factor();
-                let mut t = base.clone();
-                if s.is_finite() && s > 0.0 {
-                    for v in t[2..3 + NOMINAL_TERMS].iter_mut() {
-                        *v += s.ln();
-                    }
-                }
-                vec![t]
+                vec![self.same_force(problem, &base, &spec_new, &base)]
             }
             // Linear effects: no nonlinear parameters.
             _ => vec![base],

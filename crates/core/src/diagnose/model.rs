@@ -85,7 +85,9 @@ impl Effect {
             Effect::Adhesion => {
                 "tip–sample adhesion (DMT): a pull-off on retract, or an adhesive neck that holds the tip past it"
             }
-            Effect::TipGeometry => "a tip shape other than the one declared",
+            Effect::TipGeometry => {
+                "a tip shape other than the one declared: the other pure shape, or a blunted (sphere-capped) cone"
+            }
             Effect::HydrodynamicDrag => "viscous drag on the lever, proportional to its velocity",
             Effect::ChannelDelay => "a delay of the deflection channel behind the drive",
             Effect::MainsInterference => "mains pick-up on the deflection signal",
@@ -176,7 +178,24 @@ pub struct ModelSpec {
     pub adhesion_neck: bool,
     /// What `thermal_drift` moves, and how.
     pub drift: DriftForm,
+    /// Which other tip `tip_geometry` puts on.
+    pub tip: TipForm,
 }
+
+/// The forms of `tip_geometry`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum TipForm {
+    /// The other pure shape: a cone for a declared sphere, a sphere for a declared cone (no
+    /// parameter: the compliances absorb the scale).
+    #[default]
+    Swap,
+    /// A blunted (sphere-capped) cone: the declared sphere on a cone, or the declared cone
+    /// with a rounded apex. One parameter, the depth below which it indents like the sphere.
+    Blunted,
+}
+
+/// The parameter of a blunted tip.
+const BLUNTED_TIP_NAMES: &[(&str, &str)] = &[("transition_depth_nm", "nm")];
 
 /// The forms of `thermal_drift`. Real thermal drift shifts the tip–sample distance at least
 /// as often as the detector's zero; the deflection a surface drift causes follows the
@@ -229,6 +248,7 @@ impl ModelSpec {
             effects: e,
             adhesion_neck: false,
             drift: DriftForm::Deflection,
+            tip: TipForm::Swap,
         }
     }
 
@@ -246,6 +266,16 @@ impl ModelSpec {
                 .collect();
             out.extend(necked);
         }
+        if out[0].has(Effect::TipGeometry) && out[0].tip == TipForm::Swap {
+            let blunted: Vec<ModelSpec> = out
+                .iter()
+                .map(|s| ModelSpec {
+                    tip: TipForm::Blunted,
+                    ..s.clone()
+                })
+                .collect();
+            out.extend(blunted);
+        }
         if out[0].has(Effect::ThermalDrift) && out[0].drift == DriftForm::Deflection {
             let drifting: Vec<ModelSpec> = [DriftForm::CurvedDeflection, DriftForm::Surface]
                 .iter()
@@ -262,6 +292,8 @@ impl ModelSpec {
             ADHESION_NECK_NAMES
         } else if e == Effect::ThermalDrift && self.drift == DriftForm::Surface {
             SURFACE_DRIFT_NAMES
+        } else if e == Effect::TipGeometry && self.tip == TipForm::Blunted {
+            BLUNTED_TIP_NAMES
         } else {
             e.nonlinear_names()
         }
@@ -465,12 +497,15 @@ impl Problem {
                 q: q.exp(),
             });
         }
-        let tip = if spec.has(Effect::TipGeometry) {
+        let tip = if spec.has(Effect::TipGeometry) && spec.tip == TipForm::Blunted {
+            let depth = p(Effect::TipGeometry, 0).map_or(1.0, f64::exp);
+            blunted(self.declared_tip, depth)
+        } else if spec.has(Effect::TipGeometry) {
             match self.declared_tip {
                 TipConfig::Sphere { .. } => TipConfig::Cone {
                     half_angle_deg: CONE_HALF_ANGLE_DEG,
                 },
-                TipConfig::Cone { .. } => TipConfig::Sphere {
+                TipConfig::Cone { .. } | TipConfig::BluntedCone { .. } => TipConfig::Sphere {
                     radius_nm: SWAP_SPHERE_RADIUS_NM,
                 },
             }
@@ -612,10 +647,16 @@ impl Problem {
                     let kc = self.spring_constant_n_per_m * self.sensitivity_nm_per_v;
                     let b = &sim.base_nm;
                     let n = b.len();
+                    // The twin's velocity, the record at rest before its first sample.
                     let col: Vec<f64> = (0..n)
                         .map(|i| {
-                            let (lo, hi) = (i.saturating_sub(1), (i + 1).min(n - 1));
-                            let v = (b[hi] - b[lo]) * self.fs_hz / (hi - lo).max(1) as f64;
+                            let at = |j: Option<usize>| b[j.unwrap_or(0)];
+                            let v = crate::twin::base_velocity(
+                                at(i.checked_sub(2)),
+                                at(i.checked_sub(1)),
+                                b[i],
+                                self.fs_hz,
+                            );
                             v * sim.lever_share[i] / kc
                         })
                         .collect();
@@ -780,12 +821,36 @@ impl Problem {
                 out.push((name.to_string(), *unit, v, ci));
             }
         }
-        if effect == Effect::TipGeometry {
+        if effect == Effect::TipGeometry && spec.tip == TipForm::Swap {
             let shape = match self.declared_tip {
                 TipConfig::Sphere { .. } => 2.0,
-                TipConfig::Cone { .. } => 1.5,
+                _ => 1.5,
             };
             out.push(("indentation_exponent".into(), "1", shape, [shape, shape]));
+        }
+        if let Some(o) = spec
+            .offset_of(effect)
+            .filter(|_| effect == Effect::TipGeometry && spec.tip == TipForm::Blunted)
+        {
+            // The blunted tip's own geometry, its interval mapped through from the depth's.
+            let (x, s) = (th[o], sd.get(o).copied().unwrap_or(f64::NAN));
+            let tip_at = |lnd: f64| blunted(self.declared_tip, lnd.exp());
+            let geometry = |t: TipConfig| match (self.declared_tip, t) {
+                (TipConfig::Sphere { .. }, TipConfig::BluntedCone { half_angle_deg, .. }) => {
+                    Some(("cone_half_angle_deg", "°", half_angle_deg))
+                }
+                (_, TipConfig::BluntedCone { radius_nm, .. }) => {
+                    Some(("apex_radius_nm", "nm", radius_nm))
+                }
+                _ => None,
+            };
+            if let (Some((name, unit, v)), Some(lo), Some(hi)) = (
+                geometry(tip_at(x)),
+                geometry(tip_at(x - 1.96 * s)),
+                geometry(tip_at(x + 1.96 * s)),
+            ) {
+                out.push((name.into(), unit, v, [lo.2.min(hi.2), lo.2.max(hi.2)]));
+            }
         }
         // Linear coefficients: index 0 is the offset; effects follow in spec order.
         let mut idx = 1;
@@ -821,6 +886,28 @@ impl Problem {
             .iter()
             .map(|e| e.linear_names(spec, self.mains_hz).len())
             .sum::<usize>()
+    }
+}
+
+/// The declared tip blunted so that it indents like a sphere down to `depth_nm` (the
+/// transition depth `R·cos²α` of a sphere-capped cone): a declared sphere set on a cone of
+/// the matching half-angle, or a declared cone given the matching apex radius.
+fn blunted(declared: TipConfig, depth_nm: f64) -> TipConfig {
+    match declared {
+        TipConfig::Sphere { radius_nm } => {
+            // Past the sphere's own depth the cone would be a cylinder: keep a sliver of cone.
+            let c2 = (depth_nm / radius_nm).clamp(1e-12, 1.0 - 1e-9);
+            TipConfig::BluntedCone {
+                radius_nm,
+                half_angle_deg: c2.sqrt().acos().to_degrees(),
+            }
+        }
+        TipConfig::Cone { half_angle_deg } | TipConfig::BluntedCone { half_angle_deg, .. } => {
+            TipConfig::BluntedCone {
+                radius_nm: depth_nm / half_angle_deg.to_radians().cos().powi(2),
+                half_angle_deg,
+            }
+        }
     }
 }
 

@@ -20,7 +20,6 @@ pub fn drive_for_force(cfg: &TwinConfig, force_n: &[f64], fs_hz: f64) -> Vec<f64
     let contact = cfg.contact();
     let k = cfg.cantilever.spring_constant_n_per_m;
     let c = contact.force_factor();
-    let expo = contact.indentation_exponent();
     let m = &cfg.sample.material;
     let p0 = force_n.iter().sum::<f64>() / n as f64;
     let y0 = m.j0_per_pa * c * p0.max(0.0);
@@ -39,7 +38,7 @@ pub fn drive_for_force(cfg: &TwinConfig, force_n: &[f64], fs_hz: f64) -> Vec<f64
             m.complex_compliance(-2.0 * std::f64::consts::PI * f).conj()
         };
         let dh_per_n = if h0 > 0.0 {
-            jstar * c / (expo * h0.powf(expo - 1.0))
+            jstar * c / contact.shape_slope(h0)
         } else {
             Complex64::new(0.0, 0.0)
         };

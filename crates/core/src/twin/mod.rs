@@ -74,8 +74,19 @@ pub struct CantileverConfig {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "shape", rename_all = "lowercase")]
 pub enum TipConfig {
-    Sphere { radius_nm: f64 },
-    Cone { half_angle_deg: f64 },
+    Sphere {
+        radius_nm: f64,
+    },
+    Cone {
+        half_angle_deg: f64,
+    },
+    /// A cone whose apex is a sphere of `radius_nm` tangent to it (Briscoe et al. 1994): what
+    /// real AFM tips are. Below the transition depth `R·cos²α` it indents like the sphere,
+    /// far beyond it like the cone. (`shape = "bluntedcone"`.)
+    BluntedCone {
+        radius_nm: f64,
+        half_angle_deg: f64,
+    },
 }
 
 /// `[sample]`: the soft sample under test.
@@ -215,16 +226,22 @@ impl TwinConfig {
             positive(p("cantilever.first_mode.freq_hz"), m.freq_hz);
             positive(p("cantilever.first_mode.q"), m.q);
         }
-        match self.tip {
-            TipConfig::Sphere { radius_nm } => positive(p("tip.radius_nm"), radius_nm),
-            TipConfig::Cone { half_angle_deg } => {
-                if !(half_angle_deg > 0.0 && half_angle_deg < 90.0) {
-                    issues.push(ConfigIssue {
-                        path: p("tip.half_angle_deg"),
-                        message: format!("must lie in (0, 90) degrees (got {half_angle_deg})"),
-                    });
-                }
-            }
+        let (radius, angle) = match self.tip {
+            TipConfig::Sphere { radius_nm } => (Some(radius_nm), None),
+            TipConfig::Cone { half_angle_deg } => (None, Some(half_angle_deg)),
+            TipConfig::BluntedCone {
+                radius_nm,
+                half_angle_deg,
+            } => (Some(radius_nm), Some(half_angle_deg)),
+        };
+        if let Some(r) = radius {
+            positive(p("tip.radius_nm"), r);
+        }
+        if let Some(a) = angle.filter(|a| !(*a > 0.0 && *a < 90.0)) {
+            issues.push(ConfigIssue {
+                path: p("tip.half_angle_deg"),
+                message: format!("must lie in (0, 90) degrees (got {a})"),
+            });
         }
         let m = &self.sample.material;
         let mut positive = |path: String, v: f64| {
@@ -326,6 +343,13 @@ impl TwinConfig {
             TipConfig::Cone { half_angle_deg } => TipGeometry::Cone {
                 half_angle_rad: half_angle_deg.to_radians(),
             },
+            TipConfig::BluntedCone {
+                radius_nm,
+                half_angle_deg,
+            } => TipGeometry::BluntedCone {
+                radius_m: radius_nm * 1e-9,
+                half_angle_rad: half_angle_deg.to_radians(),
+            },
         };
         Contact {
             tip,
@@ -376,6 +400,9 @@ pub struct Twin {
     detector: Detector,
     sensor_rng: StdRng,
     last_base_nm: f64,
+    /// The base position one sample before that, nm (the drag's velocity is a second-order
+    /// difference: see [`base_velocity`]).
+    earlier_base_nm: f64,
     /// Last contact solution (m): the warm start of the next solve.
     last_d_m: f64,
     /// Whether an adhesive neck holds the tip (the contact has let go, the neck not broken).
@@ -406,6 +433,7 @@ impl Twin {
             cfg: cfg.clone(),
             fs_hz,
             last_base_nm: 0.0,
+            earlier_base_nm: 0.0,
             last_d_m: 0.0,
             neck_holds: false,
             elapsed_samples: 0,
@@ -433,6 +461,7 @@ impl Twin {
         self.elapsed_samples = 0;
         self.external_force_n = 0.0;
         self.last_base_nm = self.actuator.position_nm();
+        self.earlier_base_nm = self.last_base_nm;
         let d = self.solve_contact(self.last_base_nm, false);
         if let Some(l) = self.lever.as_mut() {
             l.settle(d);
@@ -460,10 +489,12 @@ impl Twin {
         // Drag c·ḃ (nN) pushes on the lever like a repulsive force while approaching; in
         // contact the sample carries part of it (the contact solve shares it out).
         self.external_force_n = self.cfg.drag.map_or(0.0, |drag| {
-            drag.coefficient_nn_s_per_nm * (base - self.last_base_nm) * self.fs_hz * 1e-9
+            let v = base_velocity(self.earlier_base_nm, self.last_base_nm, base, self.fs_hz);
+            drag.coefficient_nn_s_per_nm * v * 1e-9
         });
         let d_static = self.solve_contact(base, true);
         let mut d = d_static;
+        self.earlier_base_nm = self.last_base_nm;
         self.last_base_nm = base;
         if let Some(l) = self.lever.as_mut() {
             d = l.step(d);
@@ -545,7 +576,7 @@ impl Twin {
         // the lever: K·d = F_contact − F_adh + F_ext.
         let f_net_n = f_adh_n - self.external_force_n;
         let cf = self.contact.force_factor();
-        let expo = self.contact.indentation_exponent();
+        let contact = self.contact;
         let (alpha, beta) = self.material.affine();
         let gap_m = (base_nm - self.soft_surface_nm()) * 1e-9;
         let k_si = k; // N/m
@@ -566,14 +597,14 @@ impl Twin {
         // decreasing in d.
         let g = |d_m: f64| -> f64 {
             let h = gap_m - d_m;
-            let hk = if h > 0.0 { h.powf(expo) } else { 0.0 };
+            let hk = contact.y_from_indentation(h);
             hk - alpha * cf * (k_si * d_m + f_net_n) / corr(h.max(0.0)) - beta
         };
         let d_lo = -f_net_n / k_si;
         let touching = if self.in_contact {
             g(d_lo) >= 0.0 && gap_m - d_lo > 0.0
         } else {
-            gap_m > 0.0 && gap_m.powf(expo) > beta
+            gap_m > 0.0 && contact.y_from_indentation(gap_m) > beta
         };
         let (d_m, u, share) = if touching {
             // Two or three Newton steps from the previous solution are what keep the twin far
@@ -581,7 +612,7 @@ impl Twin {
             // correction.
             let slope = |d: f64| {
                 let h = (gap_m - d).max(1e-300);
-                -expo * h.powf(expo - 1.0) - alpha * cf * k_si / corr(h)
+                -contact.shape_slope(h) - alpha * cf * k_si / corr(h)
             };
             let tol = 1e-14 * (1.0 + gap_m.abs());
             let d = decreasing_root(g, slope, (d_lo, gap_m.max(d_lo)), self.last_d_m, tol, 60);
@@ -630,6 +661,15 @@ impl Twin {
         }
         holds.then_some(d)
     }
+}
+
+/// The base's velocity at the newest of three consecutive positions (nm/s): the
+/// second-order backward difference. It is causal, as a twin stepping sample by sample must
+/// be, yet as accurate as a central difference (error O(Δt²)); a first-order difference
+/// would lag by half a sample, which at a tenth of the sample rate turns a drag's phase by
+/// 18° and makes it look like a resonance.
+pub fn base_velocity(earlier_nm: f64, last_nm: f64, now_nm: f64, fs_hz: f64) -> f64 {
+    (3.0 * now_nm - 4.0 * last_nm + earlier_nm) * 0.5 * fs_hz
 }
 
 #[cfg(test)]
