@@ -693,6 +693,11 @@ pub fn diagnose_with(
                 let (b, fb) = others[j];
                 let mut spec = ModelSpec::with(&[a, *b]);
                 spec.adhesion_neck = fa.spec.adhesion_neck || fb.spec.adhesion_neck;
+                spec.nonlinearity = if fa.spec.has(Effect::DetectorNonlinearity) {
+                    fa.spec.nonlinearity
+                } else {
+                    fb.spec.nonlinearity
+                };
                 spec.tip = if fa.spec.has(Effect::TipGeometry) {
                     fa.spec.tip
                 } else {

@@ -158,10 +158,13 @@ impl Effect {
             ],
             Effect::HydrodynamicDrag => vec![("drag_nn_s_per_nm".into(), "nN·s/nm")],
             Effect::DetectorNonlinearity => {
-                vec![
-                    ("quadratic_per_v".into(), "1/V"),
-                    ("cubic_per_v2".into(), "1/V²"),
-                ]
+                let quadratic = ("quadratic_per_v".into(), "1/V");
+                let cubic = ("cubic_per_v2".into(), "1/V²");
+                match spec.nonlinearity {
+                    NonlinearityForm::Both => vec![quadratic, cubic],
+                    NonlinearityForm::Quadratic => vec![quadratic],
+                    NonlinearityForm::Cubic => vec![cubic],
+                }
             }
             _ => vec![],
         }
@@ -180,6 +183,21 @@ pub struct ModelSpec {
     pub drift: DriftForm,
     /// Which other tip `tip_geometry` puts on.
     pub tip: TipForm,
+    /// Which terms `detector_nonlinearity` has.
+    pub nonlinearity: NonlinearityForm,
+}
+
+/// The forms of `detector_nonlinearity`. A detector's departure from linearity is usually one
+/// term: quadratic where the spot sits off the photodiode's centre, cubic where it saturates
+/// symmetrically; a term the record does not need costs its BIC price and can hand the win to
+/// a look-alike with one parameter.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum NonlinearityForm {
+    /// Quadratic and cubic terms.
+    #[default]
+    Both,
+    Quadratic,
+    Cubic,
 }
 
 /// The forms of `tip_geometry`.
@@ -249,6 +267,7 @@ impl ModelSpec {
             adhesion_neck: false,
             drift: DriftForm::Deflection,
             tip: TipForm::Swap,
+            nonlinearity: NonlinearityForm::Both,
         }
     }
 
@@ -275,6 +294,19 @@ impl ModelSpec {
                 })
                 .collect();
             out.extend(blunted);
+        }
+        if out[0].has(Effect::DetectorNonlinearity) && out[0].nonlinearity == NonlinearityForm::Both
+        {
+            let single: Vec<ModelSpec> = [NonlinearityForm::Quadratic, NonlinearityForm::Cubic]
+                .iter()
+                .flat_map(|&nonlinearity| {
+                    out.iter().map(move |s| ModelSpec {
+                        nonlinearity,
+                        ..s.clone()
+                    })
+                })
+                .collect();
+            out.extend(single);
         }
         if out[0].has(Effect::ThermalDrift) && out[0].drift == DriftForm::Deflection {
             let drifting: Vec<ModelSpec> = [DriftForm::CurvedDeflection, DriftForm::Surface]
@@ -663,8 +695,12 @@ impl Problem {
                     cols.push(owned(col));
                 }
                 Effect::DetectorNonlinearity => {
-                    cols.push(owned(sim.clean_v.iter().map(|v| v * v).collect()));
-                    cols.push(owned(sim.clean_v.iter().map(|v| v * v * v).collect()));
+                    if spec.nonlinearity != NonlinearityForm::Cubic {
+                        cols.push(owned(sim.clean_v.iter().map(|v| v * v).collect()));
+                    }
+                    if spec.nonlinearity != NonlinearityForm::Quadratic {
+                        cols.push(owned(sim.clean_v.iter().map(|v| v * v * v).collect()));
+                    }
                 }
                 _ => {}
             }
