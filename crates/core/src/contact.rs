@@ -130,17 +130,7 @@ impl Contact {
         match self.tip {
             TipGeometry::Sphere { .. } => h_m.powf(1.5),
             TipGeometry::Cone { .. } => h_m.powf(2.0),
-            TipGeometry::BluntedCone {
-                radius_m,
-                half_angle_rad,
-            } => {
-                let bc = BluntedCone::new(radius_m, half_angle_rad);
-                if h_m <= bc.h_t {
-                    h_m.powf(1.5)
-                } else {
-                    bc.y_scale * bc.at(bc.s_from_h(h_m).0).g
-                }
-            }
+            TipGeometry::BluntedCone { .. } => self.y_and_slope(h_m).0,
         }
     }
 
@@ -154,30 +144,22 @@ impl Contact {
         match self.tip {
             TipGeometry::Sphere { .. } => 1.5 * h_m.sqrt(),
             TipGeometry::Cone { .. } => 2.0 * h_m,
-            TipGeometry::BluntedCone {
-                radius_m,
-                half_angle_rad,
-            } => {
-                let bc = BluntedCone::new(radius_m, half_angle_rad);
-                if h_m <= bc.h_t {
-                    1.5 * h_m.sqrt()
-                } else {
-                    2.0 * bc.y_scale * bc.at(bc.s_from_h(h_m).0).a
-                }
-            }
+            TipGeometry::BluntedCone { .. } => self.y_and_slope(h_m).1,
         }
     }
 
-    /// `(y_from_indentation(h), shape_slope(h))` together: for a blunted cone this solves for
-    /// the contact radius once instead of twice.
+    /// `(y_from_indentation(h), shape_slope(h))` together. The blunted cone's branch lives
+    /// here only: one solve for the contact radius gives both.
     pub fn y_and_slope(&self, h_m: f64) -> (f64, f64) {
         match self.tip {
             TipGeometry::BluntedCone {
                 radius_m,
                 half_angle_rad,
-            } if h_m > 0.0 => {
+            } => {
                 let bc = BluntedCone::new(radius_m, half_angle_rad);
-                if h_m <= bc.h_t {
+                if h_m <= 0.0 {
+                    (0.0, 0.0)
+                } else if h_m <= bc.h_t {
                     (h_m.powf(1.5), 1.5 * h_m.sqrt())
                 } else {
                     let p = bc.at(bc.s_from_h(h_m).0);
