@@ -410,10 +410,6 @@ pub struct Twin {
     neck_foot_m: Option<f64>,
     /// Samples stepped since the twin last settled: the clock of the surface drift.
     elapsed_samples: u64,
-    /// Force on the lever besides the contact's (drag) during the current step, N.
-    external_force_n: f64,
-    /// The last contact solve's [`TruthSample::lever_share`].
-    lever_share: f64,
 }
 
 impl Twin {
@@ -438,8 +434,6 @@ impl Twin {
             last_d_m: 0.0,
             neck_foot_m: None,
             elapsed_samples: 0,
-            external_force_n: 0.0,
-            lever_share: 1.0,
         };
         twin.settle(0.0);
         twin
@@ -460,10 +454,9 @@ impl Twin {
         self.in_contact = false;
         self.neck_foot_m = None;
         self.elapsed_samples = 0;
-        self.external_force_n = 0.0;
         self.last_base_nm = self.actuator.position_nm();
         self.earlier_base_nm = self.last_base_nm;
-        let d = self.solve_contact(self.last_base_nm, false);
+        let (d, _) = self.solve_contact(self.last_base_nm, 0.0, false);
         if let Some(l) = self.lever.as_mut() {
             l.settle(d);
         }
@@ -489,11 +482,11 @@ impl Twin {
         let k = self.cfg.cantilever.spring_constant_n_per_m;
         // Drag c·ḃ (nN) pushes on the lever like a repulsive force while approaching; in
         // contact the sample carries part of it (the contact solve shares it out).
-        self.external_force_n = self.cfg.drag.map_or(0.0, |drag| {
+        let f_ext_n = self.cfg.drag.map_or(0.0, |drag| {
             let v = base_velocity(self.earlier_base_nm, self.last_base_nm, base, self.fs_hz);
             drag.coefficient_nn_s_per_nm * v * 1e-9
         });
-        let d_static = self.solve_contact(base, true);
+        let (d_static, lever_share) = self.solve_contact(base, f_ext_n, true);
         let mut d = d_static;
         self.earlier_base_nm = self.last_base_nm;
         self.last_base_nm = base;
@@ -525,14 +518,15 @@ impl Twin {
                 force_n: k * d * 1e-9,
                 indentation_m,
                 in_contact: self.in_contact,
-                lever_share: self.lever_share,
+                lever_share,
             },
         }
     }
 
-    /// Static deflection (nm) at base position `base_nm`; with `commit` the material and the
-    /// contact state advance.
-    fn solve_contact(&mut self, base_nm: f64, commit: bool) -> f64 {
+    /// Static deflection (nm) at base position `base_nm` with an external force `f_ext_n` (N)
+    /// on the lever, and the lever's share of that force (see [`TruthSample::lever_share`]);
+    /// with `commit` the material and the contact state advance.
+    fn solve_contact(&mut self, base_nm: f64, f_ext_n: f64, commit: bool) -> (f64, f64) {
         let k = self.cfg.cantilever.spring_constant_n_per_m; // N/m = nN/nm
         match self.slot {
             SampleSlot::Reference => {
@@ -547,15 +541,14 @@ impl Twin {
                 };
                 if commit {
                     self.in_contact = touching;
-                    self.lever_share = if touching { 0.0 } else { 1.0 };
                 }
                 if touching {
-                    d
+                    (d, 0.0)
                 } else {
-                    self.external_force_n / k * 1e9
+                    (f_ext_n / k * 1e9, 1.0)
                 }
             }
-            SampleSlot::Soft => self.solve_soft(base_nm, commit),
+            SampleSlot::Soft => self.solve_soft(base_nm, f_ext_n, commit),
         }
     }
 
@@ -569,13 +562,13 @@ impl Twin {
         s.contact_point_nm - drift
     }
 
-    fn solve_soft(&mut self, base_nm: f64, commit: bool) -> f64 {
+    fn solve_soft(&mut self, base_nm: f64, f_ext_n: f64, commit: bool) -> (f64, f64) {
         let s = &self.cfg.sample;
         let k = self.cfg.cantilever.spring_constant_n_per_m;
         let f_adh_n = s.adhesion_nn.unwrap_or(0.0) * 1e-9;
         // The contact carries the lever's force K·d, the adhesion, less any external force on
         // the lever: K·d = F_contact − F_adh + F_ext.
-        let f_net_n = f_adh_n - self.external_force_n;
+        let f_net_n = f_adh_n - f_ext_n;
         let cf = self.contact.force_factor();
         let contact = self.contact;
         let (alpha, beta) = self.material.affine();
@@ -624,10 +617,9 @@ impl Twin {
         } else if let Some(d) = self.neck_hold(gap_m, d_lo, commit) {
             (d, 0.0, 1.0)
         } else {
-            (self.external_force_n / k_si, 0.0, 1.0)
+            (f_ext_n / k_si, 0.0, 1.0)
         };
         if commit {
-            self.lever_share = share;
             if touching {
                 self.neck_foot_m = None;
             }
@@ -635,7 +627,7 @@ impl Twin {
             self.material.commit(u);
             self.last_d_m = d_m;
         }
-        d_m * 1e9
+        (d_m * 1e9, share)
     }
 
     /// Deflection (m) while an adhesive neck holds the tip out of contact, or `None` when no
