@@ -584,8 +584,8 @@ pub fn diagnose_with(
             }
         }
     }
-    // The refits are independent too. Each form of a candidate (adhesion with and without a
-    // neck) is fitted; the one with the lower BIC stands for the candidate.
+    // The refits are independent too. Each form of a candidate (`ModelSpec::variants`) is
+    // fitted; the one with the lower BIC stands for the candidate.
     // The forms are told apart on every sample: a form that fits the training blocks with an
     // event (a neck's snap-off) in the wrong place shows it on the held-out ones.
     let bic = |f: &Fitted| {
@@ -691,23 +691,7 @@ pub fn diagnose_with(
             let others: Vec<&(Effect, Fitted)> = singles.iter().filter(|(b, _)| *b != a).collect();
             let pairs = fan::map(fan, others.len(), |j| {
                 let (b, fb) = others[j];
-                let mut spec = ModelSpec::with(&[a, *b]);
-                spec.adhesion_neck = fa.spec.adhesion_neck || fb.spec.adhesion_neck;
-                spec.nonlinearity = if fa.spec.has(Effect::DetectorNonlinearity) {
-                    fa.spec.nonlinearity
-                } else {
-                    fb.spec.nonlinearity
-                };
-                spec.tip = if fa.spec.has(Effect::TipGeometry) {
-                    fa.spec.tip
-                } else {
-                    fb.spec.tip
-                };
-                spec.drift = if fa.spec.has(Effect::ThermalDrift) {
-                    fa.spec.drift
-                } else {
-                    fb.spec.drift
-                };
+                let spec = ModelSpec::pair_of(&fa.spec, &fb.spec);
                 let start = combine(&spec, &fa, fb);
                 fit_model(&problem, &spec, &[start], refit_opts, fan).map(|fp| (*b, fp))
             });
@@ -1019,7 +1003,9 @@ impl StartContext {
 
     /// A start `th` of the plain form of `spec`'s effects, extended to the form `spec`: an
     /// adhesive neck's length and stiffness after the pull-off force, a surface drift of zero
-    /// (rate and curvature) for thermal drift. A `th` that is not of the plain form is returned as it is.
+    /// (rate and curvature) for thermal drift, a blunted tip's transition depth (with the
+    /// nominal compliances rescaled to it). A `th` that is not of the plain form is returned
+    /// as it is.
     fn extend(&self, problem: &Problem, spec: &ModelSpec, th: &[f64]) -> Vec<f64> {
         let plain = ModelSpec::with(&spec.effects);
         if th.len() != plain.n_nonlinear() {
@@ -1041,14 +1027,14 @@ impl StartContext {
                     // From the nominal fit, its compliances rescaled to the same force at the
                     // deepest indentation, blunted at a third of that depth.
                     let depth = 0.3 * self.max_indentation_nm;
-                    let nominal = self.nominal_theta.clone();
-                    let mut at = ModelSpec::with(&spec.effects);
-                    at.tip = TipForm::Blunted;
-                    let mut full = nominal.clone();
-                    full.push(depth.ln());
-                    let rescaled = self.same_force(problem, &nominal, &at, &full);
-                    let n_nom = plain.n_nominal();
-                    t[..n_nom].copy_from_slice(&rescaled[..n_nom]);
+                    let tip_alone = ModelSpec {
+                        tip: TipForm::Blunted,
+                        ..ModelSpec::with(&[Effect::TipGeometry])
+                    };
+                    let mut at = self.nominal_theta.clone();
+                    at.push(depth.ln());
+                    let rescaled = self.same_force(problem, &self.nominal_theta, &tip_alone, &at);
+                    t[..plain.n_nominal()].copy_from_slice(&rescaled);
                     t.push(depth.ln());
                 }
                 _ => {}

@@ -272,50 +272,54 @@ impl ModelSpec {
     }
 
     /// The forms of this model worth fitting apart: adhesion with and without a neck, each
-    /// form of thermal drift.
+    /// form of thermal drift, of tip geometry and of detector nonlinearity (every combination
+    /// when a model has several such effects).
     pub fn variants(self) -> Vec<ModelSpec> {
-        let mut out = vec![self];
-        if out[0].has(Effect::Adhesion) && !out[0].adhesion_neck {
-            let necked: Vec<ModelSpec> = out
+        /// Every spec of `out` again with each of `forms` set by `set`.
+        fn fork<F: Copy>(out: &mut Vec<ModelSpec>, forms: &[F], set: fn(&mut ModelSpec, F)) {
+            let more: Vec<ModelSpec> = forms
                 .iter()
-                .map(|s| ModelSpec {
-                    adhesion_neck: true,
-                    ..s.clone()
-                })
-                .collect();
-            out.extend(necked);
-        }
-        if out[0].has(Effect::TipGeometry) && out[0].tip == TipForm::Swap {
-            let blunted: Vec<ModelSpec> = out
-                .iter()
-                .map(|s| ModelSpec {
-                    tip: TipForm::Blunted,
-                    ..s.clone()
-                })
-                .collect();
-            out.extend(blunted);
-        }
-        if out[0].has(Effect::DetectorNonlinearity) && out[0].nonlinearity == NonlinearityForm::Both
-        {
-            let single: Vec<ModelSpec> = [NonlinearityForm::Quadratic, NonlinearityForm::Cubic]
-                .iter()
-                .flat_map(|&nonlinearity| {
-                    out.iter().map(move |s| ModelSpec {
-                        nonlinearity,
-                        ..s.clone()
+                .flat_map(|&f| {
+                    out.iter().map(move |s| {
+                        let mut s = s.clone();
+                        set(&mut s, f);
+                        s
                     })
                 })
                 .collect();
-            out.extend(single);
+            out.extend(more);
         }
-        if out[0].has(Effect::ThermalDrift) && out[0].drift == DriftForm::Deflection {
-            let drifting: Vec<ModelSpec> = [DriftForm::CurvedDeflection, DriftForm::Surface]
-                .iter()
-                .flat_map(|&drift| out.iter().map(move |s| ModelSpec { drift, ..s.clone() }))
-                .collect();
-            out.extend(drifting);
+        let mut out = vec![self];
+        let first = out[0].clone();
+        if first.has(Effect::Adhesion) && !first.adhesion_neck {
+            fork(&mut out, &[true], |s, f| s.adhesion_neck = f);
+        }
+        if first.has(Effect::TipGeometry) && first.tip == TipForm::Swap {
+            fork(&mut out, &[TipForm::Blunted], |s, f| s.tip = f);
+        }
+        if first.has(Effect::DetectorNonlinearity) && first.nonlinearity == NonlinearityForm::Both {
+            let single = [NonlinearityForm::Quadratic, NonlinearityForm::Cubic];
+            fork(&mut out, &single, |s, f| s.nonlinearity = f);
+        }
+        if first.has(Effect::ThermalDrift) && first.drift == DriftForm::Deflection {
+            let curved = [DriftForm::CurvedDeflection, DriftForm::Surface];
+            fork(&mut out, &curved, |s, f| s.drift = f);
         }
         out
+    }
+
+    /// The model of both `a`'s and `b`'s effects, each in the form its own model had.
+    pub fn pair_of(a: &ModelSpec, b: &ModelSpec) -> ModelSpec {
+        let mut effects = a.effects.clone();
+        effects.extend(&b.effects);
+        let from = |e: Effect| if a.has(e) { a } else { b };
+        ModelSpec {
+            adhesion_neck: from(Effect::Adhesion).adhesion_neck,
+            drift: from(Effect::ThermalDrift).drift,
+            tip: from(Effect::TipGeometry).tip,
+            nonlinearity: from(Effect::DetectorNonlinearity).nonlinearity,
+            ..ModelSpec::with(&effects)
+        }
     }
 
     /// Names and units of effect `e`'s nonlinear parameters in this model, in θ order.
@@ -623,8 +627,7 @@ impl Problem {
     }
 
     /// The regressors that do not depend on the model (offset, time, mains cosine and sine,
-    /// time squared),
-    /// raw and whitened, computed on first use: every evaluation needs them, whitening them
+    /// time squared), raw and whitened, computed on first use: every evaluation needs them, whitening them
     /// each time would cost as much as a fifth of a twin simulation.
     fn fixed_columns(&self) -> &[(Vec<f64>, Vec<f64>); 5] {
         self.fixed_columns.get_or_init(|| {
@@ -961,4 +964,45 @@ fn idx_of(spec: &ModelSpec, effect: Effect, mains_hz: f64) -> usize {
 /// Total parameter count of a spec (nonlinear + closed-form), for information criteria.
 pub fn n_params(problem: &Problem, spec: &ModelSpec) -> usize {
     spec.n_nonlinear() + problem.n_linear(spec)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Each effect with forms is fitted in every one of them, and in every combination when
+    /// a model has two; a pair keeps each effect's own form.
+    #[test]
+    fn variants_and_pairs_carry_the_forms() {
+        let forms = |e: &[Effect]| ModelSpec::with(e).variants();
+        assert_eq!(forms(&[Effect::MissingRelaxation]).len(), 1);
+        let drift = forms(&[Effect::ThermalDrift]);
+        let kinds: Vec<DriftForm> = drift.iter().map(|s| s.drift).collect();
+        assert_eq!(
+            kinds,
+            [
+                DriftForm::Deflection,
+                DriftForm::CurvedDeflection,
+                DriftForm::Surface
+            ]
+        );
+        assert_eq!(drift[2].n_nonlinear(), drift[0].n_nonlinear() + 2);
+        assert_eq!(forms(&[Effect::DetectorNonlinearity]).len(), 3);
+        let both = forms(&[Effect::Adhesion, Effect::TipGeometry]);
+        assert_eq!(both.len(), 4);
+        assert!(both
+            .iter()
+            .any(|s| s.adhesion_neck && s.tip == TipForm::Blunted));
+        // A form already chosen is not forked again.
+        assert_eq!(drift[2].clone().variants().len(), 1);
+        let pair = ModelSpec::pair_of(&drift[2], &both[3]);
+        assert_eq!(
+            pair.effects,
+            [Effect::ThermalDrift, Effect::Adhesion, Effect::TipGeometry]
+        );
+        assert_eq!(
+            (pair.drift, pair.adhesion_neck, pair.tip),
+            (DriftForm::Surface, true, TipForm::Blunted)
+        );
+    }
 }

@@ -635,8 +635,8 @@ impl Twin {
     /// `d_lo` is the deflection at the pull-off, `-F_adh/K`.
     ///
     /// The neck's foot stays where the contact let go. (A foot that rises with the recovering
-    /// viscoelastic surface was tried: on the shared JPK gel it fitted the retract twice as
-    /// badly, held-out NRMSE 0.148 against 0.070.)
+    /// viscoelastic surface was tried in cd3a83d: on the shared JPK gel it fitted the retract
+    /// twice as badly, held-out NRMSE 0.148 against the 0.070 `viscoprobe diagnose` gives now.)
     fn neck_hold(&mut self, gap_m: f64, d_lo: f64, commit: bool) -> Option<f64> {
         let neck = self.cfg.sample.neck?;
         let foot = match self.neck_foot_m {

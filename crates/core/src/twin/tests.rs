@@ -179,3 +179,104 @@ fn viscoelastic_creep_under_constant_base() {
     let ratio = l.indentation_m.powf(1.5) / f.indentation_m.powf(1.5) * f.force_n / l.force_n;
     assert!((ratio - 4.0 / 2.5).abs() < 0.02, "creep ratio {ratio}");
 }
+
+/// A surface drifting toward the tip at v (with curvature c) meets a parked base earlier: the
+/// contact point at time t is `z_c − v·t − c·t²`, so at a fixed base the indentation grows.
+#[test]
+fn surface_drift_moves_the_contact_point() {
+    let mut cfg = base_config();
+    cfg.sample.surface_drift_nm_per_s = Some(20.0);
+    cfg.sample.surface_drift_curvature_nm_per_s2 = Some(-4.0);
+    assert!(cfg.validate("").is_empty());
+    let fs = 1000.0;
+    let mut twin = Twin::new(&cfg, fs);
+    twin.settle(0.9); // base 90 nm: 10 nm short of the undrifted surface
+                      // t = k/fs after the k-th step (the first step is at t = 0).
+    let mut last = twin.step(0.9);
+    assert!(!last.truth.in_contact);
+    for _ in 0..1000 {
+        last = twin.step(0.9);
+    }
+    // t = 1 s: the surface has come 20 − 4 = 16 nm: the base is 6 nm past it.
+    let t = last.truth;
+    assert!(t.in_contact);
+    let d_plus_h = t.deflection_nm + t.indentation_m * 1e9;
+    assert!((d_plus_h - 6.0).abs() < 1e-9, "{d_plus_h}");
+    let mut bad = base_config();
+    bad.sample.surface_drift_nm_per_s = Some(f64::NAN);
+    let issues = bad.validate("");
+    assert!(
+        issues
+            .iter()
+            .any(|i| i.path == "sample.surface_drift_nm_per_s"),
+        "{issues:?}"
+    );
+}
+
+/// Drag c·v on the free lever deflects it by c·v/K (lever share 1); pressed into an elastic
+/// sample of contact stiffness k_c, the lever shows only K/(K + k_c) of the same force.
+#[test]
+fn drag_is_shared_with_the_contact() {
+    let c = 2e-6; // nN·s/nm
+    let mut cfg = base_config();
+    cfg.drag = Some(Drag {
+        coefficient_nn_s_per_nm: c,
+    });
+    let (fs, rate) = (10_000.0, 1e-3); // 1e-3 V per sample at 100 nm/V: base at 1 µm/s
+    let k = cfg.cantilever.spring_constant_n_per_m;
+    let mut free = Twin::new(&cfg, fs);
+    let mut s = free.step(0.0);
+    for i in 1..50 {
+        s = free.step(rate * i as f64);
+    }
+    assert!(!s.truth.in_contact);
+    assert_eq!(s.truth.lever_share, 1.0);
+    let expected = c * 1000.0 / k; // nm
+    assert!(
+        (s.truth.deflection_nm - expected).abs() < 1e-9 * expected,
+        "{} vs {expected}",
+        s.truth.deflection_nm
+    );
+    // In contact: the same ramp past the surface, against the same ramp without drag.
+    let press = |drag: bool| {
+        let mut cfg = cfg.clone();
+        if !drag {
+            cfg.drag = None;
+        }
+        let mut twin = Twin::new(&cfg, fs);
+        twin.settle(1.4);
+        let mut s = twin.step(1.4);
+        for i in 1..50 {
+            s = twin.step(1.4 + rate * i as f64);
+        }
+        s.truth
+    };
+    let (with, without) = (press(true), press(false));
+    assert!(with.in_contact);
+    // Hertz contact stiffness dF/dh = 2E*·a = 2E/(1−ν²)·√(R·h), at the drag-free state.
+    let h = without.indentation_m;
+    let k_c = 2.0 * 1e6 / 0.75 * (20e-9 * h).sqrt();
+    let share = k / (k + k_c);
+    assert!(
+        (with.lever_share - share).abs() < 1e-3 * share,
+        "{}",
+        with.lever_share
+    );
+    let shown = with.deflection_nm - without.deflection_nm;
+    assert!(
+        (shown - share * expected).abs() < 1e-3 * share * expected,
+        "{shown} vs {}",
+        share * expected
+    );
+}
+
+/// The drag's velocity is exact for a base moving along a parabola (a second-order
+/// difference), where a first-order one is half a sample late.
+#[test]
+fn base_velocity_is_second_order() {
+    let fs = 100.0;
+    let z = |t: f64| 3.0 + 5.0 * t + 7.0 * t * t;
+    let t = 0.4;
+    let v = base_velocity(z(t - 2.0 / fs), z(t - 1.0 / fs), z(t), fs);
+    assert!((v - (5.0 + 14.0 * t)).abs() < 1e-9, "{v}");
+}
