@@ -43,3 +43,72 @@ pub fn scaled_rcond(m: &DMatrix<f64>) -> f64 {
     let d: Vec<f64> = (0..n).map(|i| m[(i, i)].max(1e-300).sqrt()).collect();
     rcond_sym(&DMatrix::from_fn(n, n, |i, j| m[(i, j)] / (d[i] * d[j])))
 }
+
+/// The diagonal of the inverse of a symmetric positive-semidefinite matrix (a Gauss–Newton
+/// `JᵀJ`), for the parameters it determines, and NaN for those it does not.
+///
+/// [`spd_inverse`] gives all or nothing: one parameter the data say nothing about (a zero
+/// column, such as the length of an adhesive neck, whose snap-off moves by whole samples
+/// and so has no local derivative) cost every other parameter its interval too. Here such
+/// parameters are set aside one by one — first those with no diagonal, then, while the rest
+/// stays singular, the one that weighs most in the direction the matrix knows least — and
+/// the rest is inverted. Their variances are conditional on the set-aside parameters.
+pub fn identified_inverse_diagonal(m: &DMatrix<f64>) -> Vec<f64> {
+    let n = m.nrows();
+    let mut out = vec![f64::NAN; n];
+    let mut active: Vec<usize> = (0..n)
+        .filter(|&i| m[(i, i)].is_finite() && m[(i, i)] > 0.0)
+        .collect();
+    while !active.is_empty() {
+        let sub = DMatrix::from_fn(active.len(), active.len(), |a, b| m[(active[a], active[b])]);
+        if let Some(inv) = spd_inverse(&sub) {
+            for (a, &i) in active.iter().enumerate() {
+                out[i] = inv[(a, a)];
+            }
+            break;
+        }
+        let s: Vec<f64> = active.iter().map(|&i| 1.0 / m[(i, i)].sqrt()).collect();
+        let scaled = DMatrix::from_fn(active.len(), active.len(), |a, b| sub[(a, b)] * s[a] * s[b]);
+        let eig = scaled.symmetric_eigen();
+        if eig.eigenvalues.iter().any(|v| !v.is_finite()) {
+            break;
+        }
+        let weakest = eig.eigenvalues.imin();
+        let worst = eig.eigenvectors.column(weakest).iamax();
+        active.remove(worst);
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A parameter with no column leaves the others their exact variances; a full-rank
+    /// matrix gives its inverse's diagonal; two parameters that are one leave only the third.
+    #[test]
+    fn undetermined_parameters_do_not_take_the_others_with_them() {
+        let full = DMatrix::from_row_slice(2, 2, &[4.0, 1.0, 1.0, 2.0]);
+        let inv = spd_inverse(&full).unwrap();
+        let d = identified_inverse_diagonal(&full);
+        assert!((d[0] - inv[(0, 0)]).abs() < 1e-12 && (d[1] - inv[(1, 1)]).abs() < 1e-12);
+        assert!((d[0] - 2.0 / 7.0).abs() < 1e-12, "{d:?}");
+
+        let with_zero =
+            DMatrix::from_row_slice(3, 3, &[4.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 2.0]);
+        let d = identified_inverse_diagonal(&with_zero);
+        assert!(d[1].is_nan());
+        assert!(
+            (d[0] - 2.0 / 7.0).abs() < 1e-12 && (d[2] - 4.0 / 7.0).abs() < 1e-12,
+            "{d:?}"
+        );
+
+        // Parameters 0 and 1 enter only as their sum: one of them is set aside and the other
+        // keeps the variance it has with that one fixed; the third is independent.
+        let aliased = DMatrix::from_row_slice(3, 3, &[1.0, 1.0, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0, 5.0]);
+        let d = identified_inverse_diagonal(&aliased);
+        assert_eq!(d.iter().filter(|v| v.is_nan()).count(), 1, "{d:?}");
+        assert!((d[2] - 0.2).abs() < 1e-12);
+        assert!(d[..2].iter().any(|v| (v - 1.0).abs() < 1e-9), "{d:?}");
+    }
+}
