@@ -4,7 +4,7 @@
 //! assumed white: detectors have 1/f noise, and a model that "explains" 1/f noise with drift
 //! would be a false positive. Where the lever is free (before contact) the deflection is
 //! noise plus whatever is deterministic there: an offset, a slope (drift, or drag during a
-//! constant-velocity approach) and mains lines. Those are removed by least squares first (the
+//! constant-velocity approach) and mains lines with their harmonics. Those are removed by least squares first (the
 //! floor must not contain what the diagnosis looks for), then an autoregressive model, its
 //! order chosen by AIC, gives the whitening filter and the whitened σ.
 
@@ -81,7 +81,11 @@ pub fn measure(x: &[f64], fs_hz: f64) -> Option<NoiseModel> {
     }
     let t: Vec<f64> = (0..n).map(|k| k as f64 / fs_hz).collect();
     let mut cols = vec![vec![1.0; n], t.clone()];
-    for f in [50.0, 60.0] {
+    // Both mains frequencies with their second and third harmonics: mains pick-up is a
+    // candidate with harmonics, and a floor that kept them would whiten them away (an AR
+    // model of order 29 did, on an independent simulator's 60 Hz pick-up with its third
+    // harmonic, and the harmonic's interval came out three times too wide).
+    for f in [50.0, 60.0, 100.0, 120.0, 150.0, 180.0] {
         if f < fs_hz / 2.0 {
             let w = 2.0 * std::f64::consts::PI * f;
             cols.push(t.iter().map(|t| (w * t).cos()).collect());
