@@ -922,6 +922,8 @@ fn mains_knob(freq_hz: f64) -> Knob {
             c.detector.mains = Some(Mains {
                 freq_hz,
                 amplitude_v: p,
+                second_harmonic_v: 0.0,
+                third_harmonic_v: 0.0,
             });
             vec![
                 ("detector.mains.freq_hz".into(), freq_hz),

@@ -1227,6 +1227,60 @@ mod tests {
         assert_eq!(dn.effects.len(), dv.effects.len() - 2);
     }
 
+    /// Mains pick-up with a third harmonic: named, fitted in its harmonics form, each
+    /// amplitude recovered; a pure line keeps the plain form (no harmonic parameters).
+    #[test]
+    fn mains_harmonics_are_fitted_when_present() {
+        let fs = 5000.0;
+        let (drive_v, _) = protocol_drive(fs);
+        let mut twin = nominal_twin(12);
+        let sigma = twin.detector.white_noise_v;
+        let (a1, a3) = (1.5 * sigma, 0.6 * sigma);
+        let mains = |third| crate::twin::detector::Mains {
+            freq_hz: 50.0,
+            amplitude_v: a1,
+            second_harmonic_v: 0.0,
+            third_harmonic_v: third,
+        };
+        twin.detector.mains = Some(mains(a3));
+        let d = diagnose(
+            &simulate(&twin, &drive_v, fs, None),
+            &DiagnoseOptions::default(),
+        )
+        .unwrap();
+        let top = &d.effects[0];
+        assert!(top.significant && top.id == "mains_interference", "{top:?}");
+        let p = |name: &str| top.params.iter().find(|p| p.name == name).map(|p| p.value);
+        let (f1, f3) = (
+            p("amplitude_v").unwrap(),
+            p("amplitude_3rd_harmonic_v").unwrap(),
+        );
+        assert!((f1 / a1 - 1.0).abs() < 0.05, "fundamental {f1} V vs {a1} V");
+        assert!(
+            (f3 / a3 - 1.0).abs() < 0.1,
+            "third harmonic {f3} V vs {a3} V"
+        );
+        assert!(p("amplitude_2nd_harmonic_v").unwrap() < 0.2 * a3);
+
+        twin.detector.mains = Some(mains(0.0));
+        let d = diagnose(
+            &simulate(&twin, &drive_v, fs, None),
+            &DiagnoseOptions::default(),
+        )
+        .unwrap();
+        let top = &d.effects[0];
+        assert!(top.significant && top.id == "mains_interference", "{top:?}");
+        assert!(
+            p_absent(&top.params, "amplitude_3rd_harmonic_v"),
+            "{:?}",
+            top.params
+        );
+    }
+
+    fn p_absent(params: &[super::Param], name: &str) -> bool {
+        params.iter().all(|p| p.name != name)
+    }
+
     /// A third held out, a held block starting at the anchor, and around each event every
     /// third sample held, so an event of a few samples lands on both sides.
     #[test]

@@ -152,10 +152,23 @@ impl Effect {
                 ],
                 DriftForm::Surface => vec![],
             },
-            Effect::MainsInterference => vec![
-                (format!("cos_{mains_hz:.0}hz_v"), "V"),
-                (format!("sin_{mains_hz:.0}hz_v"), "V"),
-            ],
+            Effect::MainsInterference => {
+                let harmonics: &[u32] = if spec.mains_harmonics {
+                    &[1, 2, 3]
+                } else {
+                    &[1]
+                };
+                harmonics
+                    .iter()
+                    .flat_map(|&h| {
+                        let f = h as f64 * mains_hz;
+                        [
+                            (format!("cos_{f:.0}hz_v"), "V"),
+                            (format!("sin_{f:.0}hz_v"), "V"),
+                        ]
+                    })
+                    .collect()
+            }
             Effect::HydrodynamicDrag => vec![("drag_nn_s_per_nm".into(), "nN·s/nm")],
             Effect::DetectorNonlinearity => {
                 let quadratic = ("quadratic_per_v".into(), "1/V");
@@ -185,6 +198,10 @@ pub struct ModelSpec {
     pub tip: TipForm,
     /// Which terms `detector_nonlinearity` has.
     pub nonlinearity: NonlinearityForm,
+    /// `mains_interference` with its second and third harmonics as well (four more
+    /// closed-form coefficients): a supply distorted by rectifying loads, or a transformer
+    /// near saturation, radiates its harmonics beside the line, the third the strongest.
+    pub mains_harmonics: bool,
 }
 
 /// The forms of `detector_nonlinearity`. A detector's departure from linearity is usually one
@@ -268,6 +285,7 @@ impl ModelSpec {
             drift: DriftForm::Deflection,
             tip: TipForm::Swap,
             nonlinearity: NonlinearityForm::Both,
+            mains_harmonics: false,
         }
     }
 
@@ -301,6 +319,9 @@ impl ModelSpec {
             let single = [NonlinearityForm::Quadratic, NonlinearityForm::Cubic];
             fork(&mut out, &single, |s, f| s.nonlinearity = f);
         }
+        if first.has(Effect::MainsInterference) && !first.mains_harmonics {
+            fork(&mut out, &[true], |s, f| s.mains_harmonics = f);
+        }
         if first.has(Effect::ThermalDrift) && first.drift == DriftForm::Deflection {
             let curved = [DriftForm::CurvedDeflection, DriftForm::Surface];
             fork(&mut out, &curved, |s, f| s.drift = f);
@@ -318,6 +339,7 @@ impl ModelSpec {
             drift: from(Effect::ThermalDrift).drift,
             tip: from(Effect::TipGeometry).tip,
             nonlinearity: from(Effect::DetectorNonlinearity).nonlinearity,
+            mains_harmonics: from(Effect::MainsInterference).mains_harmonics,
             ..ModelSpec::with(&effects)
         }
     }
@@ -406,7 +428,7 @@ pub struct Problem {
     /// Lowest frequency at which the noise floor was measured, Hz.
     pub floor_from_hz: f64,
     /// Offset, time and mains columns, raw and whitened (see `fixed_columns`); leave empty.
-    pub fixed_columns: std::sync::OnceLock<[(Vec<f64>, Vec<f64>); 5]>,
+    pub fixed_columns: std::sync::OnceLock<[(Vec<f64>, Vec<f64>); 9]>,
     /// Twin simulations run so far (the cost of a diagnosis); leave at zero.
     pub simulations: std::sync::atomic::AtomicUsize,
 }
@@ -626,10 +648,11 @@ impl Problem {
         Some(sim)
     }
 
-    /// The regressors that do not depend on the model (offset, time, mains cosine and sine,
-    /// time squared), raw and whitened, computed on first use: every evaluation needs them, whitening them
-    /// each time would cost as much as a fifth of a twin simulation.
-    fn fixed_columns(&self) -> &[(Vec<f64>, Vec<f64>); 5] {
+    /// The regressors that do not depend on the model (offset, time, the mains line's cosine
+    /// and sine, time squared, then cosine and sine of the mains' second and third
+    /// harmonics), raw and whitened, computed on first use: every evaluation needs them,
+    /// whitening them each time would cost as much as a fifth of a twin simulation.
+    fn fixed_columns(&self) -> &[(Vec<f64>, Vec<f64>); 9] {
         self.fixed_columns.get_or_init(|| {
             let w = 2.0 * std::f64::consts::PI * self.mains_hz;
             let col = |c: Vec<f64>| {
@@ -642,6 +665,10 @@ impl Problem {
                 col(self.t_s.iter().map(|t| (w * t).cos()).collect()),
                 col(self.t_s.iter().map(|t| (w * t).sin()).collect()),
                 col(self.t_s.iter().map(|t| t * t).collect()),
+                col(self.t_s.iter().map(|t| (2.0 * w * t).cos()).collect()),
+                col(self.t_s.iter().map(|t| (2.0 * w * t).sin()).collect()),
+                col(self.t_s.iter().map(|t| (3.0 * w * t).cos()).collect()),
+                col(self.t_s.iter().map(|t| (3.0 * w * t).sin()).collect()),
             ]
         })
     }
@@ -674,6 +701,9 @@ impl Problem {
                 Effect::MainsInterference => {
                     cols.push(borrowed(2));
                     cols.push(borrowed(3));
+                    if spec.mains_harmonics {
+                        (5..9).for_each(|i| cols.push(borrowed(i)));
+                    }
                 }
                 Effect::HydrodynamicDrag => {
                     // The twin's drag: a force c·ḃ on the lever, which shows as c·ḃ·s/K nm
@@ -908,6 +938,15 @@ impl Problem {
             let i = idx_of(spec, effect, self.mains_hz);
             let (c, s) = (linear[i], linear[i + 1]);
             out.push(("amplitude_v".into(), "V", c.hypot(s), [f64::NAN, f64::NAN]));
+            if spec.mains_harmonics {
+                for (h, name) in [
+                    (1, "amplitude_2nd_harmonic_v"),
+                    (2, "amplitude_3rd_harmonic_v"),
+                ] {
+                    let (c, s) = (linear[i + 2 * h], linear[i + 2 * h + 1]);
+                    out.push((name.into(), "V", c.hypot(s), [f64::NAN, f64::NAN]));
+                }
+            }
             out.push((
                 "freq_hz".into(),
                 "Hz",
@@ -988,6 +1027,9 @@ mod tests {
         );
         assert_eq!(drift[2].n_nonlinear(), drift[0].n_nonlinear() + 2);
         assert_eq!(forms(&[Effect::DetectorNonlinearity]).len(), 3);
+        let mains = forms(&[Effect::MainsInterference]);
+        assert_eq!(mains.len(), 2);
+        assert!(!mains[0].mains_harmonics && mains[1].mains_harmonics);
         let both = forms(&[Effect::Adhesion, Effect::TipGeometry]);
         assert_eq!(both.len(), 4);
         assert!(both

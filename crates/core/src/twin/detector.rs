@@ -43,6 +43,13 @@ pub struct DetectorConfig {
 pub struct Mains {
     pub freq_hz: f64,
     pub amplitude_v: f64,
+    /// Amplitude of the second harmonic (2·`freq_hz`, in sine phase), V.
+    #[serde(default)]
+    pub second_harmonic_v: f64,
+    /// Amplitude of the third harmonic, V: a supply distorted by rectifying loads radiates
+    /// its odd harmonics, the third the strongest.
+    #[serde(default)]
+    pub third_harmonic_v: f64,
 }
 
 const PINK_OCTAVES: usize = 10;
@@ -128,7 +135,10 @@ impl Detector {
         }
         out += self.cfg.drift_v_per_s * t;
         if let Some(m) = self.cfg.mains {
-            out += m.amplitude_v * (2.0 * std::f64::consts::PI * m.freq_hz * t).sin();
+            let phase = 2.0 * std::f64::consts::PI * m.freq_hz * t;
+            out += m.amplitude_v * phase.sin()
+                + m.second_harmonic_v * (2.0 * phase).sin()
+                + m.third_harmonic_v * (3.0 * phase).sin();
         }
         if self.cfg.lsb_v > 0.0 {
             out = (out / self.cfg.lsb_v).round() * self.cfg.lsb_v;
