@@ -17,7 +17,8 @@ pub struct Fitted {
     pub spec: ModelSpec,
     pub theta: Vec<f64>,
     pub eval: Evaluation,
-    /// Standard errors of θ (fitting coordinates), from `(JᵀJ)⁻¹` scaled by the reduced χ².
+    /// Standard errors of θ (fitting coordinates), from `(JᵀJ)⁻¹` scaled by the reduced χ²;
+    /// NaN where the data do not determine a parameter (see [`scan_step_parameters`]).
     pub sd: Vec<f64>,
     /// Jacobian of the train residuals at θ (rows: train samples).
     pub jacobian: DMatrix<f64>,
@@ -199,17 +200,11 @@ pub fn fit_model(
         {
             continue;
         }
-        let dof = (problem.train.len() as f64 - free.len() as f64).max(1.0);
-        let scale = (f.eval.chi2_train / dof).max(1.0);
-        let mut sd: Vec<f64> = crate::linalg::identified_inverse_diagonal(&f.jtj)
+        let scale = chi2_scale(problem, f.eval.chi2_train, free.len());
+        let sd: Vec<f64> = crate::linalg::identified_inverse_diagonal(&f.jtj)
             .into_iter()
             .map(|v| (v.max(0.0) * scale).sqrt())
             .collect();
-        for i in 0..free.len() {
-            if f.jtj[(i, i)] == 0.0 {
-                sd[i] = step_parameter_sd(problem, spec, &f.theta, free[i], &f.eval, scale);
-            }
-        }
         best = Some(Fitted {
             spec: spec.clone(),
             theta: f.theta,
@@ -221,42 +216,45 @@ pub fn fit_model(
     best
 }
 
-/// The standard deviation of a parameter with no local derivative: one that acts through
-/// an event moving by whole samples (the length of an adhesive neck sets which sample it
-/// snaps at). Its χ²_train is scanned, everything else held, outward in ever larger steps
-/// until it rises by 3.84 (× `scale`, the fit's χ²/dof when above 1, as for the other
-/// parameters): the 95 % interval conditional on the others, its wider half / 1.96 here.
-/// NaN when even a step of ±2 (a factor e² on a log parameter) does not raise it that much.
-fn step_parameter_sd(
-    problem: &Problem,
-    spec: &ModelSpec,
-    theta: &[f64],
-    i: usize,
-    at: &Evaluation,
-    scale: f64,
-) -> f64 {
-    let limit = at.chi2_train + 3.84 * scale;
-    let mut widest: f64 = 0.0;
-    for dir in [-1.0, 1.0] {
+/// The factor the covariance of a fit with χ²_train `chi2` and `n_free` parameters is scaled
+/// by: its χ² per degree of freedom, when above 1 (a misfit widens every interval).
+fn chi2_scale(problem: &Problem, chi2: f64, n_free: usize) -> f64 {
+    let dof = (problem.train.len() as f64 - n_free as f64).max(1.0);
+    (chi2 / dof).max(1.0)
+}
+
+/// Fills in the standard deviation of each parameter of `f` with no local derivative (a zero
+/// Jacobian column, which `fit_model` leaves at NaN): one that acts through an event moving
+/// by whole samples, as an adhesive neck's length sets which sample it snaps at.
+///
+/// Its χ²_train is scanned, everything else held, outward in ever larger steps until it rises
+/// by 3.84 × the fit's [`chi2_scale`]: the 95 % interval conditional on the others, its wider
+/// half / 1.96 here. It stays NaN when even a step of ±2 (a factor e² on a log parameter)
+/// does not raise it that much. A scan costs up to 30 simulations, so it is run only on the
+/// fits a report shows, not on every fit a diagnosis tries.
+pub fn scan_step_parameters(problem: &Problem, f: &mut Fitted) {
+    let scale = chi2_scale(problem, f.eval.chi2_train, f.theta.len());
+    let limit = f.eval.chi2_train + 3.84 * scale;
+    let reach = |i: usize, dir: f64| -> Option<f64> {
         let mut step = 0.005;
-        let reached = loop {
-            if step > 2.0 {
-                break None;
-            }
-            let mut th = theta.to_vec();
+        while step <= 2.0 {
+            let mut th = f.theta.clone();
             th[i] += dir * step;
-            match problem.evaluate(spec, &th) {
-                Some(e) if e.chi2_train > limit => break Some(step),
-                Some(_) => step *= 1.5,
-                None => break Some(step),
+            match problem.evaluate(&f.spec, &th) {
+                Some(e) if e.chi2_train <= limit => step *= 1.5,
+                _ => return Some(step),
             }
-        };
-        match reached {
-            Some(s) => widest = widest.max(s),
-            None => return f64::NAN,
+        }
+        None
+    };
+    for i in 0..f.theta.len() {
+        if f.sd[i].is_nan() && f.jacobian.column(i).iter().all(|&v| v == 0.0) {
+            f.sd[i] = match (reach(i, -1.0), reach(i, 1.0)) {
+                (Some(lo), Some(hi)) => lo.max(hi) / 1.96,
+                _ => f64::NAN,
+            };
         }
     }
-    widest / 1.96
 }
 
 /// Screening χ² of a candidate: only its own parameters move, the nominal ones are refitted

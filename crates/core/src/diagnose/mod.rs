@@ -39,7 +39,7 @@ use crate::prony::PronySeries;
 use crate::recording::{Drive, Recording};
 use crate::twin::TipConfig;
 use fan::Fan;
-use fit::{fit_model, orthonormal_basis, screen, FitOptions, Fitted};
+use fit::{fit_model, orthonormal_basis, scan_step_parameters, screen, FitOptions, Fitted};
 use locate::{Location, Phase};
 use model::{DriftForm, Effect, ModelSpec, Problem, TipForm, NOMINAL_TERMS};
 use noise::NoiseModel;
@@ -614,7 +614,8 @@ pub fn diagnose_with(
             })
             .collect();
         let plain = fits.iter().find(|f| f.spec == spec).cloned();
-        let best = fits.into_iter().min_by(|a, b| bic(a).total_cmp(&bic(b)))?;
+        let mut best = fits.into_iter().min_by(|a, b| bic(a).total_cmp(&bic(b)))?;
+        scan_step_parameters(&problem, &mut best);
         let plain = plain.filter(|p| p.spec != best.spec);
         Some((*e, best, plain))
     })
@@ -692,16 +693,13 @@ pub fn diagnose_with(
     let leaves_structure = |f: &Fitted| f.eval.chi2_held > n_ho + 5.0 * (2.0 * n_ho).sqrt();
     if opts.pairs {
         if let Some((a, fa, _)) = sig_singles.first().cloned() {
+            // Each partner in its best form and, where that is another, its plain one.
+            let wide = leaves_structure(&fa);
             let others: Vec<&(Effect, Fitted)> = singles
                 .iter()
+                .chain(&plain_forms)
                 .filter(|(b, _)| *b != a)
-                .filter(|(b, _)| {
-                    leaves_structure(&fa) || sig_singles.iter().any(|(s, _, _)| s == b)
-                })
-                .collect();
-            let others: Vec<&(Effect, Fitted)> = others
-                .into_iter()
-                .flat_map(|o| std::iter::once(o).chain(plain_forms.iter().filter(|p| p.0 == o.0)))
+                .filter(|(b, _)| wide || sig_singles.iter().any(|(s, _, _)| s == b))
                 .collect();
             let pairs = fan::map(fan, others.len(), |j| {
                 let (b, fb) = others[j];
@@ -716,7 +714,8 @@ pub fn diagnose_with(
                     best_pair = Some((b, fp, d_ho));
                 }
             }
-            if let Some((b, fp, _)) = best_pair {
+            if let Some((b, mut fp, _)) = best_pair {
+                scan_step_parameters(&problem, &mut fp);
                 chosen_effects.push(b);
                 chosen = Some(fp);
             }
@@ -1233,24 +1232,25 @@ mod tests {
     fn mains_harmonics_are_fitted_when_present() {
         let fs = 5000.0;
         let (drive_v, _) = protocol_drive(fs);
-        let mut twin = nominal_twin(12);
+        let twin = nominal_twin(12);
         let sigma = twin.detector.white_noise_v;
         let (a1, a3) = (1.5 * sigma, 0.6 * sigma);
-        let mains = |third| crate::twin::detector::Mains {
-            freq_hz: 50.0,
-            amplitude_v: a1,
-            second_harmonic_v: 0.0,
-            third_harmonic_v: third,
+        // The top effect's parameters (name → value) with a third harmonic of `third` V.
+        let top_with = |third: f64| {
+            let mut twin = twin.clone();
+            twin.detector.mains = Some(crate::twin::detector::Mains {
+                freq_hz: 50.0,
+                amplitude_v: a1,
+                second_harmonic_v: 0.0,
+                third_harmonic_v: third,
+            });
+            let rec = simulate(&twin, &drive_v, fs, None);
+            let d = diagnose(&rec, &DiagnoseOptions::default()).unwrap();
+            let top = d.effects[0].clone();
+            assert!(top.significant && top.id == "mains_interference", "{top:?}");
+            move |name: &str| top.params.iter().find(|p| p.name == name).map(|p| p.value)
         };
-        twin.detector.mains = Some(mains(a3));
-        let d = diagnose(
-            &simulate(&twin, &drive_v, fs, None),
-            &DiagnoseOptions::default(),
-        )
-        .unwrap();
-        let top = &d.effects[0];
-        assert!(top.significant && top.id == "mains_interference", "{top:?}");
-        let p = |name: &str| top.params.iter().find(|p| p.name == name).map(|p| p.value);
+        let p = top_with(a3);
         let (f1, f3) = (
             p("amplitude_v").unwrap(),
             p("amplitude_3rd_harmonic_v").unwrap(),
@@ -1262,23 +1262,13 @@ mod tests {
         );
         assert!(p("amplitude_2nd_harmonic_v").unwrap() < 0.2 * a3);
 
-        twin.detector.mains = Some(mains(0.0));
-        let d = diagnose(
-            &simulate(&twin, &drive_v, fs, None),
-            &DiagnoseOptions::default(),
-        )
-        .unwrap();
-        let top = &d.effects[0];
-        assert!(top.significant && top.id == "mains_interference", "{top:?}");
-        assert!(
-            p_absent(&top.params, "amplitude_3rd_harmonic_v"),
-            "{:?}",
-            top.params
+        let p = top_with(0.0);
+        assert!(p("amplitude_v").is_some());
+        assert_eq!(
+            p("amplitude_3rd_harmonic_v"),
+            None,
+            "a pure line in the plain form"
         );
-    }
-
-    fn p_absent(params: &[super::Param], name: &str) -> bool {
-        params.iter().all(|p| p.name != name)
     }
 
     /// A third held out, a held block starting at the anchor, and around each event every
