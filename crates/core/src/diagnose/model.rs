@@ -153,14 +153,13 @@ impl Effect {
                 DriftForm::Surface => vec![],
             },
             Effect::MainsInterference => {
-                let harmonics: &[u32] = if spec.mains_harmonics {
-                    &[1, 2, 3]
+                let harmonics = if spec.mains_harmonics {
+                    MAINS_HARMONICS
                 } else {
-                    &[1]
+                    1
                 };
-                harmonics
-                    .iter()
-                    .flat_map(|&h| {
+                (1..=harmonics)
+                    .flat_map(|h| {
                         let f = h as f64 * mains_hz;
                         [
                             (format!("cos_{f:.0}hz_v"), "V"),
@@ -264,6 +263,33 @@ const SURFACE_DRIFT_NAMES: &[(&str, &str)] = &[
 /// θ unit of the surface drift (and, per second, of its curvature): a signed rate has no
 /// logarithm, and 1 nm/s is the size of a warming instrument's drift.
 pub(crate) const SURFACE_DRIFT_SCALE_NM_PER_S: f64 = 1.0;
+
+/// Harmonics of the mains line that `mains_interference` in its harmonic form fits, the
+/// line itself counted as the first. The noise floor removes the same ones.
+pub(crate) const MAINS_HARMONICS: usize = 3;
+
+/// The regressors every model draws from ([`Problem::fixed_columns`]).
+#[derive(Debug, Clone, Copy)]
+enum FixedColumn {
+    Offset,
+    Time,
+    TimeSquared,
+    /// Cosine of the mains harmonic `h` (1: the line).
+    MainsCos(usize),
+    MainsSin(usize),
+}
+
+impl FixedColumn {
+    fn index(self) -> usize {
+        match self {
+            FixedColumn::Offset => 0,
+            FixedColumn::Time => 1,
+            FixedColumn::TimeSquared => 2,
+            FixedColumn::MainsCos(h) => 1 + 2 * h,
+            FixedColumn::MainsSin(h) => 2 + 2 * h,
+        }
+    }
+}
 
 /// Prony terms of the nominal material. The nominal twin is the simplest model that describes
 /// a viscoelastic indentation across a broadband record; a third time constant is a catalog
@@ -428,7 +454,7 @@ pub struct Problem {
     /// Lowest frequency at which the noise floor was measured, Hz.
     pub floor_from_hz: f64,
     /// Offset, time and mains columns, raw and whitened (see `fixed_columns`); leave empty.
-    pub fixed_columns: std::sync::OnceLock<[(Vec<f64>, Vec<f64>); 9]>,
+    pub fixed_columns: std::sync::OnceLock<Vec<(Vec<f64>, Vec<f64>)>>,
     /// Twin simulations run so far (the cost of a diagnosis); leave at zero.
     pub simulations: std::sync::atomic::AtomicUsize,
 }
@@ -648,28 +674,24 @@ impl Problem {
         Some(sim)
     }
 
-    /// The regressors that do not depend on the model (offset, time, the mains line's cosine
-    /// and sine, time squared, then cosine and sine of the mains' second and third
-    /// harmonics), raw and whitened, computed on first use: every evaluation needs them,
-    /// whitening them each time would cost as much as a fifth of a twin simulation.
-    fn fixed_columns(&self) -> &[(Vec<f64>, Vec<f64>); 9] {
+    /// The regressors that do not depend on the model — the offset, time, time squared, then
+    /// the cosine and sine of each mains harmonic (see [`FixedColumn`]) — raw and whitened,
+    /// computed on first use: every evaluation needs them, whitening them each time would
+    /// cost as much as a fifth of a twin simulation.
+    fn fixed_columns(&self) -> &[(Vec<f64>, Vec<f64>)] {
         self.fixed_columns.get_or_init(|| {
-            let w = 2.0 * std::f64::consts::PI * self.mains_hz;
-            let col = |c: Vec<f64>| {
+            let col = |f: &dyn Fn(f64) -> f64| {
+                let c: Vec<f64> = self.t_s.iter().map(|&t| f(t)).collect();
                 let wc = self.whiten(&c);
                 (c, wc)
             };
-            [
-                col(vec![1.0; self.drive.len()]),
-                col(self.t_s.clone()),
-                col(self.t_s.iter().map(|t| (w * t).cos()).collect()),
-                col(self.t_s.iter().map(|t| (w * t).sin()).collect()),
-                col(self.t_s.iter().map(|t| t * t).collect()),
-                col(self.t_s.iter().map(|t| (2.0 * w * t).cos()).collect()),
-                col(self.t_s.iter().map(|t| (2.0 * w * t).sin()).collect()),
-                col(self.t_s.iter().map(|t| (3.0 * w * t).cos()).collect()),
-                col(self.t_s.iter().map(|t| (3.0 * w * t).sin()).collect()),
-            ]
+            let mut cols = vec![col(&|_| 1.0), col(&|t| t), col(&|t| t * t)];
+            for h in 1..=MAINS_HARMONICS {
+                let w = 2.0 * std::f64::consts::PI * self.mains_hz * h as f64;
+                cols.push(col(&|t| (w * t).cos()));
+                cols.push(col(&|t| (w * t).sin()));
+            }
+            cols
         })
     }
 
@@ -677,32 +699,34 @@ impl Problem {
     /// effect's regressors.
     fn regressors(&self, spec: &ModelSpec, sim: &Simulation) -> Vec<Regressor<'_>> {
         let fixed = self.fixed_columns();
-        let borrowed = |i: usize| {
-            (
-                Cow::Borrowed(&fixed[i].0[..]),
-                Cow::Borrowed(&fixed[i].1[..]),
-            )
+        let borrowed = |c: FixedColumn| {
+            let (raw, white) = &fixed[c.index()];
+            (Cow::Borrowed(&raw[..]), Cow::Borrowed(&white[..]))
         };
         let owned = |c: Vec<f64>| {
             let wc = self.whiten(&c);
             (Cow::Owned(c), Cow::Owned(wc))
         };
-        let mut cols = vec![borrowed(0)];
+        let mut cols = vec![borrowed(FixedColumn::Offset)];
         for &e in &spec.effects {
             match e {
                 Effect::ThermalDrift => match spec.drift {
-                    DriftForm::Deflection => cols.push(borrowed(1)),
+                    DriftForm::Deflection => cols.push(borrowed(FixedColumn::Time)),
                     DriftForm::CurvedDeflection => {
-                        cols.push(borrowed(1));
-                        cols.push(borrowed(4));
+                        cols.push(borrowed(FixedColumn::Time));
+                        cols.push(borrowed(FixedColumn::TimeSquared));
                     }
                     DriftForm::Surface => {}
                 },
                 Effect::MainsInterference => {
-                    cols.push(borrowed(2));
-                    cols.push(borrowed(3));
-                    if spec.mains_harmonics {
-                        (5..9).for_each(|i| cols.push(borrowed(i)));
+                    let harmonics = if spec.mains_harmonics {
+                        MAINS_HARMONICS
+                    } else {
+                        1
+                    };
+                    for h in 1..=harmonics {
+                        cols.push(borrowed(FixedColumn::MainsCos(h)));
+                        cols.push(borrowed(FixedColumn::MainsSin(h)));
                     }
                 }
                 Effect::HydrodynamicDrag => {
@@ -939,12 +963,15 @@ impl Problem {
             let (c, s) = (linear[i], linear[i + 1]);
             out.push(("amplitude_v".into(), "V", c.hypot(s), [f64::NAN, f64::NAN]));
             if spec.mains_harmonics {
-                for (h, name) in [
-                    (1, "amplitude_2nd_harmonic_v"),
-                    (2, "amplitude_3rd_harmonic_v"),
-                ] {
-                    let (c, s) = (linear[i + 2 * h], linear[i + 2 * h + 1]);
-                    out.push((name.into(), "V", c.hypot(s), [f64::NAN, f64::NAN]));
+                for h in 2..=MAINS_HARMONICS {
+                    let (c, s) = (linear[i + 2 * h - 2], linear[i + 2 * h - 1]);
+                    let ordinal = match h {
+                        2 => "2nd".to_string(),
+                        3 => "3rd".to_string(),
+                        _ => format!("{h}th"),
+                    };
+                    let name = format!("amplitude_{ordinal}_harmonic_v");
+                    out.push((name, "V", c.hypot(s), [f64::NAN, f64::NAN]));
                 }
             }
             out.push((

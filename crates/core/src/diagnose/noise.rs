@@ -4,9 +4,12 @@
 //! assumed white: detectors have 1/f noise, and a model that "explains" 1/f noise with drift
 //! would be a false positive. Where the lever is free (before contact) the deflection is
 //! noise plus whatever is deterministic there: an offset, a slope (drift, or drag during a
-//! constant-velocity approach) and mains lines with their harmonics. Those are removed by least squares first (the
-//! floor must not contain what the diagnosis looks for), then an autoregressive model, its
-//! order chosen by AIC, gives the whitening filter and the whitened σ.
+//! constant-velocity approach) and mains lines with their harmonics. Those are removed by
+//! least squares first (the floor must not contain what the diagnosis looks for), then an
+//! autoregressive model, its order chosen by AIC, gives the whitening filter and the
+//! whitened σ.
+
+use super::model::MAINS_HARMONICS;
 
 /// The measured noise floor.
 #[derive(Debug, Clone)]
@@ -85,7 +88,8 @@ pub fn measure(x: &[f64], fs_hz: f64) -> Option<NoiseModel> {
     // candidate with harmonics, and a floor that kept them would whiten them away (an AR
     // model of order 29 did, on an independent simulator's 60 Hz pick-up with its third
     // harmonic, and the harmonic's interval came out three times too wide).
-    for f in [50.0, 60.0, 100.0, 120.0, 150.0, 180.0] {
+    let harmonics = (1..=MAINS_HARMONICS).map(|h| h as f64);
+    for f in harmonics.flat_map(|h| [50.0 * h, 60.0 * h]) {
         if f < fs_hz / 2.0 {
             let w = 2.0 * std::f64::consts::PI * f;
             cols.push(t.iter().map(|t| (w * t).cos()).collect());
