@@ -190,8 +190,9 @@ fn surface_drift_moves_the_contact_point() {
     assert!(cfg.validate("").is_empty());
     let fs = 1000.0;
     let mut twin = Twin::new(&cfg, fs);
-    twin.settle(0.9); // base 90 nm: 10 nm short of the undrifted surface
-                      // t = k/fs after the k-th step (the first step is at t = 0).
+    // Base 90 nm: 10 nm short of the undrifted surface. After the k-th step t = k/fs (the
+    // first step is at t = 0).
+    twin.settle(0.9);
     let mut last = twin.step(0.9);
     assert!(!last.truth.in_contact);
     for _ in 0..1000 {
