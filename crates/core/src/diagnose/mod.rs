@@ -104,15 +104,21 @@ pub struct EffectReport {
     pub id: &'static str,
     pub significant: bool,
     /// Drop of the held-out χ² when the effect is added (whitened residual; the floor's
-    /// scatter of a χ² over N samples is √(2N)). Screened-only candidates: the screening drop.
+    /// scatter of a χ² over N samples is √(2N)) to the nominal model, or, where `given` names
+    /// an effect, to the model that already has that one. Screened-only candidates: the
+    /// screening drop.
     pub evidence: f64,
+    /// The effect already in the model that `evidence` is measured against: the first of a
+    /// pair, for the second (its drop over the nominal model alone would count twice the
+    /// residual the two share).
+    pub given: Option<&'static str>,
     /// Drop of the train χ² and the BIC penalty it had to beat.
     pub train_drop: f64,
     pub bic_penalty: f64,
     /// Whether the candidate was refitted with every parameter free (else screened only).
     pub refitted: bool,
     pub params: Vec<Param>,
-    /// Held-out NRMSE with this effect alone added.
+    /// Held-out NRMSE with this effect added (alone, or beside `given`).
     pub held_out_nrmse: Option<f64>,
     pub description: &'static str,
 }
@@ -656,6 +662,7 @@ pub fn diagnose_with(
             evidence: d_ho,
             train_drop: d_tr,
             bic_penalty: pen,
+            given: None,
             refitted: true,
             params: params_of(&problem, f, *e),
             held_out_nrmse: Some(held_nrmse(&problem, f)),
@@ -673,6 +680,7 @@ pub fn diagnose_with(
             evidence: *d,
             train_drop: *d,
             bic_penalty: f64::NAN,
+            given: None,
             refitted: false,
             params: vec![],
             held_out_nrmse: None,
@@ -707,15 +715,23 @@ pub fn diagnose_with(
                 let start = combine(&spec, &fa, fb);
                 fit_model(&problem, &spec, &[start], refit_opts, fan).map(|fp| (*b, fp))
             });
-            let mut best_pair: Option<(Effect, Fitted, f64)> = None;
+            let mut best_pair: Option<(Effect, Fitted, (f64, f64, f64))> = None;
             for (b, fp) in pairs.into_iter().flatten() {
-                let (ok, _, d_ho, _) = judge(&fa, &fp);
-                if ok && best_pair.as_ref().is_none_or(|p| d_ho > p.2) {
-                    best_pair = Some((b, fp, d_ho));
+                let (ok, d_tr, d_ho, pen) = judge(&fa, &fp);
+                if ok && best_pair.as_ref().is_none_or(|p| d_ho > p.2 .1) {
+                    best_pair = Some((b, fp, (d_tr, d_ho, pen)));
                 }
             }
-            if let Some((b, mut fp, _)) = best_pair {
+            if let Some((b, mut fp, (d_tr, d_ho, pen))) = best_pair {
                 scan_step_parameters(&problem, &mut fp);
+                // The second effect's evidence is what it adds to the first.
+                if let Some(r) = reports.iter_mut().find(|r| r.id == b.id()) {
+                    r.evidence = d_ho;
+                    r.train_drop = d_tr;
+                    r.bic_penalty = pen;
+                    r.given = Some(a.id());
+                    r.held_out_nrmse = Some(held_nrmse(&problem, &fp));
+                }
                 chosen_effects.push(b);
                 chosen = Some(fp);
             }
@@ -1269,6 +1285,38 @@ mod tests {
             None,
             "a pure line in the plain form"
         );
+    }
+
+    /// Mains pick-up and a detector drift at once: both named, the stronger first, and the
+    /// second's evidence is what it adds to the model that already has the first (the pair's
+    /// own held-out NRMSE), not its drop over the nominal model alone.
+    #[test]
+    fn a_pairs_second_effect_is_judged_over_the_first() {
+        let fs = 5000.0;
+        let (drive_v, _) = protocol_drive(fs);
+        let mut twin = nominal_twin(13);
+        let sigma = twin.detector.white_noise_v;
+        twin.detector.mains = Some(crate::twin::detector::Mains {
+            freq_hz: 50.0,
+            amplitude_v: 1.5 * sigma,
+            second_harmonic_v: 0.0,
+            third_harmonic_v: 0.0,
+        });
+        let record_s = drive_v.len() as f64 / fs;
+        twin.detector.drift_v_per_s = 2.0 * sigma / record_s;
+        let rec = simulate(&twin, &drive_v, fs, None);
+        let d = diagnose(&rec, &DiagnoseOptions::default()).unwrap();
+        let sig: Vec<_> = d.effects.iter().filter(|e| e.significant).collect();
+        let mut ids: Vec<_> = sig.iter().map(|e| e.id).collect();
+        ids.sort();
+        assert_eq!(ids, ["mains_interference", "thermal_drift"], "{sig:?}");
+        let (first, second) = (sig[0], sig[1]);
+        assert_eq!(first.given, None);
+        assert_eq!(second.given, Some(first.id));
+        assert_eq!(second.held_out_nrmse, Some(d.after.held_out_nrmse));
+        assert!(second.evidence > 15.0, "{second:?}");
+        // Every other candidate is measured against the nominal model.
+        assert!(d.effects.iter().skip(2).all(|e| e.given.is_none()));
     }
 
     /// A third held out, a held block starting at the anchor, and around each event every

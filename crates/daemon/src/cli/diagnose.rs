@@ -80,6 +80,7 @@ pub fn diagnosis_json(file: &str, d: &Diagnosis, seconds: f64) -> Value {
             "id": e.id,
             "significant": e.significant,
             "evidence": e.evidence,
+            "evidence_given": e.given,
             "train_chi2_drop": e.train_drop,
             "bic_penalty": if e.bic_penalty.is_finite() { json!(e.bic_penalty) } else { Value::Null },
             "refitted": e.refitted,
@@ -216,8 +217,11 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
     }
     for e in &sig {
         println!("  {} — {}", e.id, e.description);
+        let over = e
+            .given
+            .map_or(String::new(), |g| format!(" over the model with {g}"));
         println!(
-            "    evidence: held-out χ² drops by {:.1} (train by {:.1}; BIC penalty {:.1})",
+            "    evidence: held-out χ² drops by {:.1}{over} (train by {:.1}; BIC penalty {:.1})",
             e.evidence, e.train_drop, e.bic_penalty
         );
         for p in &e.params {
