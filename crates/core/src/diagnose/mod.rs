@@ -1145,14 +1145,26 @@ impl StartContext {
                 .iter()
                 .map(|&t: &f64| with(&[(0.01f64).ln(), t.ln()]))
                 .collect(),
-            Effect::MissingRelaxation => [
-                3.0 / fs,
-                (3.0 / fs * 0.3 * self.record_s).sqrt(),
-                0.3 * self.record_s,
-            ]
-            .iter()
-            .map(|&t: &f64| with(&[(0.1 * j_inst).ln(), t.ln()]))
-            .collect(),
+            Effect::MissingRelaxation => {
+                // The fastest and slowest times the record resolves, the middle of that
+                // range and of each gap between the nominal terms; but none within a factor
+                // 2 of a nominal term, which a third term there would only split (a large
+                // slow term the nominal fit put halfway is missing in the gap it left).
+                let mut taus: Vec<f64> = (0..NOMINAL_TERMS)
+                    .map(|i| base[3 + NOMINAL_TERMS + i].exp())
+                    .collect();
+                taus.sort_by(f64::total_cmp);
+                let (fast, slow) = (3.0 / fs, 0.3 * self.record_s);
+                let mut at: Vec<f64> = vec![fast, (fast * slow).sqrt(), slow];
+                at.extend(taus.windows(2).map(|w| (w[0] * w[1]).sqrt()));
+                let apart = |t: &f64| taus.iter().all(|n| (t / n).ln().abs() > 2f64.ln());
+                if at.iter().any(apart) {
+                    at.retain(apart);
+                }
+                at.iter()
+                    .map(|&t: &f64| with(&[(0.1 * j_inst).ln(), t.ln()]))
+                    .collect()
+            }
             Effect::InstrumentResonance => {
                 // The mode's frequency is the one parameter no local fit finds: a mode above
                 // the top excited line shows only as a gain on the highest lines, and from a
@@ -1190,10 +1202,38 @@ impl StartContext {
                 .iter()
                 .map(|&m| with(&[(m * self.max_indentation_nm).ln()]))
                 .collect(),
-            Effect::ChannelDelay => [0.5 / fs, 2.0 / fs]
-                .iter()
-                .map(|&d: &f64| with(&[d.ln()]))
-                .collect(),
+            Effect::ChannelDelay => {
+                // A delay of many samples (a DAQ's digital filter) turns the top excited
+                // lines through whole cycles, and the χ² then has a basin every period of
+                // the top line: a local fit from a sample or two never gets there. A grid of
+                // quarter-octave steps up to 64 samples, each one simulation with the nominal
+                // parameters held, puts the best basin among the starts.
+                let spec = ModelSpec::with(&[Effect::ChannelDelay]);
+                let max_s = (64.0 / fs).min(0.05 * self.record_s);
+                let points: Vec<Vec<f64>> = (0..)
+                    .map(|i| 0.5 / fs * 2f64.powf(i as f64 / 4.0))
+                    .take_while(|&d| d <= max_s)
+                    .map(|d| with(&[d.ln()]))
+                    .collect();
+                let chi2 = fan::map(fan, points.len(), |i| {
+                    problem.evaluate(&spec, &points[i]).map(|e| e.chi2_train)
+                });
+                let best = chi2
+                    .into_iter()
+                    .zip(&points)
+                    .filter_map(|(c, t)| Some((c?, t)))
+                    .min_by(|a, b| a.0.total_cmp(&b.0))
+                    .map(|g| g.1.clone());
+                // The grid's best first: a refit takes only the first start of a set.
+                let mut out: Vec<Vec<f64>> = best.into_iter().collect();
+                for d in [0.5 / fs, 2.0 / fs] {
+                    let t = with(&[d.ln()]);
+                    if !out.contains(&t) {
+                        out.push(t);
+                    }
+                }
+                out
+            }
             Effect::TipGeometry => {
                 let spec_new = ModelSpec::with(&[Effect::TipGeometry]);
                 vec![self.same_force(problem, &base, &spec_new, &base)]
@@ -1317,6 +1357,28 @@ mod tests {
         assert!(second.evidence > 15.0, "{second:?}");
         // Every other candidate is measured against the nominal model.
         assert!(d.effects.iter().skip(2).all(|e| e.given.is_none()));
+    }
+
+    /// A channel delay of 15 samples turns the top excited line (800 Hz) through 2.4 cycles:
+    /// found and measured all the same, not mistaken for a resonance or the material.
+    #[test]
+    fn a_delay_of_many_samples_is_found() {
+        let fs = 5000.0;
+        let (drive_v, _) = protocol_drive(fs);
+        let mut twin = nominal_twin(14);
+        twin.detector.delay_s = 15.0 / fs;
+        let rec = simulate(&twin, &drive_v, fs, None);
+        let d = diagnose(&rec, &DiagnoseOptions::default()).unwrap();
+        let top = &d.effects[0];
+        assert!(top.significant && top.id == "channel_delay", "{top:?}");
+        let delay = top.params.iter().find(|p| p.name == "delay_s").unwrap();
+        assert!(
+            (delay.value * fs / 15.0 - 1.0).abs() < 0.02,
+            "delay {} s vs {} s",
+            delay.value,
+            15.0 / fs
+        );
+        assert!(d.after.held_out_chi2_per_sample < 1.1, "{:?}", d.after);
     }
 
     /// A third held out, a held block starting at the anchor, and around each event every
