@@ -11,17 +11,24 @@ pub const SINGULAR_RCOND: f64 = 1e-13;
 /// to working precision.
 pub fn spd_inverse(m: &DMatrix<f64>) -> Option<DMatrix<f64>> {
     let n = m.nrows();
-    let d: Vec<f64> = (0..n).map(|i| m[(i, i)]).collect();
-    if d.iter().any(|x| x.is_nan() || *x <= 0.0 || !x.is_finite()) {
+    if (0..n).any(|i| !(m[(i, i)].is_finite() && m[(i, i)] > 0.0)) {
         return None;
     }
-    let s: Vec<f64> = d.iter().map(|x| 1.0 / x.sqrt()).collect();
-    let scaled = DMatrix::from_fn(n, n, |i, j| m[(i, j)] * s[i] * s[j]);
+    let (scaled, s) = unit_diagonal(m);
     if rcond_sym(&scaled) < SINGULAR_RCOND {
         return None;
     }
     let inv = scaled.cholesky()?.inverse();
     Some(DMatrix::from_fn(n, n, |i, j| inv[(i, j)] * s[i] * s[j]))
+}
+
+/// `m` scaled symmetrically to unit diagonal, `S·m·S` with `S = diag(1/√mᵢᵢ)`, and the
+/// factors `1/√mᵢᵢ` (a diagonal at or below zero is taken as 1e-300, which scales its row
+/// and column to nothing).
+fn unit_diagonal(m: &DMatrix<f64>) -> (DMatrix<f64>, Vec<f64>) {
+    let n = m.nrows();
+    let s: Vec<f64> = (0..n).map(|i| 1.0 / m[(i, i)].max(1e-300).sqrt()).collect();
+    (DMatrix::from_fn(n, n, |i, j| m[(i, j)] * s[i] * s[j]), s)
 }
 
 /// Reciprocal 2-norm condition number of a symmetric matrix (smallest/largest |eigenvalue|).
@@ -39,9 +46,7 @@ pub fn rcond_sym(m: &DMatrix<f64>) -> f64 {
 /// Reciprocal condition of a symmetric matrix after scaling it to unit diagonal: how well a
 /// Gauss–Newton matrix separates the parameters, whatever their units.
 pub fn scaled_rcond(m: &DMatrix<f64>) -> f64 {
-    let n = m.nrows();
-    let d: Vec<f64> = (0..n).map(|i| m[(i, i)].max(1e-300).sqrt()).collect();
-    rcond_sym(&DMatrix::from_fn(n, n, |i, j| m[(i, j)] / (d[i] * d[j])))
+    rcond_sym(&unit_diagonal(m).0)
 }
 
 /// The diagonal of the inverse of a symmetric positive-semidefinite matrix (a Gauss–Newton
@@ -67,9 +72,7 @@ pub fn identified_inverse_diagonal(m: &DMatrix<f64>) -> Vec<f64> {
             }
             break;
         }
-        let s: Vec<f64> = active.iter().map(|&i| 1.0 / m[(i, i)].sqrt()).collect();
-        let scaled = DMatrix::from_fn(active.len(), active.len(), |a, b| sub[(a, b)] * s[a] * s[b]);
-        let eig = scaled.symmetric_eigen();
+        let eig = unit_diagonal(&sub).0.symmetric_eigen();
         if eig.eigenvalues.iter().any(|v| !v.is_finite()) {
             break;
         }

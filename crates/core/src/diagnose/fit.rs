@@ -192,28 +192,26 @@ pub fn fit_model(
     let fits = fan::map(fan, starts.len(), |k| {
         fit_params(problem, spec, &starts[k], &free, opts, None, fan)
     });
-    let mut best: Option<Fitted> = None;
-    for f in fits.into_iter().flatten() {
-        if best
-            .as_ref()
-            .is_some_and(|b| b.eval.chi2_train <= f.eval.chi2_train)
-        {
-            continue;
+    // The lowest χ²; the first of equals, as the starts were listed.
+    let f = fits.into_iter().flatten().reduce(|b, f| {
+        if f.eval.chi2_train < b.eval.chi2_train {
+            f
+        } else {
+            b
         }
-        let scale = chi2_scale(problem, f.eval.chi2_train, free.len());
-        let sd: Vec<f64> = crate::linalg::identified_inverse_diagonal(&f.jtj)
-            .into_iter()
-            .map(|v| (v.max(0.0) * scale).sqrt())
-            .collect();
-        best = Some(Fitted {
-            spec: spec.clone(),
-            theta: f.theta,
-            eval: f.eval,
-            sd,
-            jacobian: f.jacobian,
-        });
-    }
-    best
+    })?;
+    let scale = chi2_scale(problem, f.eval.chi2_train, free.len());
+    let sd: Vec<f64> = crate::linalg::identified_inverse_diagonal(&f.jtj)
+        .into_iter()
+        .map(|v| (v.max(0.0) * scale).sqrt())
+        .collect();
+    Some(Fitted {
+        spec: spec.clone(),
+        theta: f.theta,
+        eval: f.eval,
+        sd,
+        jacobian: f.jacobian,
+    })
 }
 
 /// The factor the covariance of a fit with χ²_train `chi2` and `n_free` parameters is scaled
