@@ -152,22 +152,15 @@ impl Effect {
                 ],
                 DriftForm::Surface => vec![],
             },
-            Effect::MainsInterference => {
-                let harmonics = if spec.mains_harmonics {
-                    MAINS_HARMONICS
-                } else {
-                    1
-                };
-                (1..=harmonics)
-                    .flat_map(|h| {
-                        let f = h as f64 * mains_hz;
-                        [
-                            (format!("cos_{f:.0}hz_v"), "V"),
-                            (format!("sin_{f:.0}hz_v"), "V"),
-                        ]
-                    })
-                    .collect()
-            }
+            Effect::MainsInterference => (1..=spec.mains_harmonic_count())
+                .flat_map(|h| {
+                    let f = h as f64 * mains_hz;
+                    [
+                        (format!("cos_{f:.0}hz_v"), "V"),
+                        (format!("sin_{f:.0}hz_v"), "V"),
+                    ]
+                })
+                .collect(),
             Effect::HydrodynamicDrag => vec![("drag_nn_s_per_nm".into(), "nN·s/nm")],
             Effect::DetectorNonlinearity => {
                 let quadratic = ("quadratic_per_v".into(), "1/V");
@@ -385,6 +378,16 @@ impl ModelSpec {
 
     pub fn has(&self, e: Effect) -> bool {
         self.effects.contains(&e)
+    }
+
+    /// How many mains harmonics `mains_interference` has in this model, the line itself
+    /// counted as the first: its columns, coefficient names and amplitudes all follow this.
+    pub fn mains_harmonic_count(&self) -> usize {
+        if self.mains_harmonics {
+            MAINS_HARMONICS
+        } else {
+            1
+        }
     }
 
     /// Number of nominal nonlinear parameters: ln g, contact point, ln J_inst, (ln Ji, ln τi)×n.
@@ -719,12 +722,7 @@ impl Problem {
                     DriftForm::Surface => {}
                 },
                 Effect::MainsInterference => {
-                    let harmonics = if spec.mains_harmonics {
-                        MAINS_HARMONICS
-                    } else {
-                        1
-                    };
-                    for h in 1..=harmonics {
+                    for h in 1..=spec.mains_harmonic_count() {
                         cols.push(borrowed(FixedColumn::MainsCos(h)));
                         cols.push(borrowed(FixedColumn::MainsSin(h)));
                     }
@@ -960,19 +958,15 @@ impl Problem {
         }
         if effect == Effect::MainsInterference {
             let i = idx_of(spec, effect, self.mains_hz);
-            let (c, s) = (linear[i], linear[i + 1]);
-            out.push(("amplitude_v".into(), "V", c.hypot(s), [f64::NAN, f64::NAN]));
-            if spec.mains_harmonics {
-                for h in 2..=MAINS_HARMONICS {
-                    let (c, s) = (linear[i + 2 * h - 2], linear[i + 2 * h - 1]);
-                    let ordinal = match h {
-                        2 => "2nd".to_string(),
-                        3 => "3rd".to_string(),
-                        _ => format!("{h}th"),
-                    };
-                    let name = format!("amplitude_{ordinal}_harmonic_v");
-                    out.push((name, "V", c.hypot(s), [f64::NAN, f64::NAN]));
-                }
+            for h in 1..=spec.mains_harmonic_count() {
+                let (c, s) = (linear[i + 2 * h - 2], linear[i + 2 * h - 1]);
+                let name = match h {
+                    1 => "amplitude_v".to_string(),
+                    2 => "amplitude_2nd_harmonic_v".to_string(),
+                    3 => "amplitude_3rd_harmonic_v".to_string(),
+                    _ => format!("amplitude_{h}th_harmonic_v"),
+                };
+                out.push((name, "V", c.hypot(s), [f64::NAN, f64::NAN]));
             }
             out.push((
                 "freq_hz".into(),
