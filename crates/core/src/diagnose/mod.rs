@@ -220,6 +220,17 @@ impl Simulations {
     }
 }
 
+/// How a candidate model fared against a base model (the nominal one, or a pair's first).
+#[derive(Debug, Clone, Copy)]
+struct Judgement {
+    /// It won on training data past the BIC penalty and on held-out data ([`Thresholds`]).
+    wins: bool,
+    train_drop: f64,
+    held_drop: f64,
+    /// The train drop it had to beat.
+    penalty: f64,
+}
+
 /// χ² per sample of the nominal fit above which the misfit is taken as gross: the floor's
 /// noise model then no longer weights the residual (see `diagnose`).
 const GROSS_MISFIT: f64 = 100.0;
@@ -631,37 +642,42 @@ pub fn diagnose_with(
         singles.push((e, best));
         plain_forms.extend(plain.map(|p| (e, p)));
     }
-    let judge = |base: &Fitted, cand: &Fitted| -> (bool, f64, f64, f64) {
+    let judge = |base: &Fitted, cand: &Fitted| -> Judgement {
         let k = (model::n_params(&problem, &cand.spec) as f64
             - model::n_params(&problem, &base.spec) as f64)
             .max(1.0);
-        let d_tr = base.eval.chi2_train - cand.eval.chi2_train;
-        let d_ho = base.eval.chi2_held - cand.eval.chi2_held;
+        let train_drop = base.eval.chi2_train - cand.eval.chi2_train;
+        let held_drop = base.eval.chi2_held - cand.eval.chi2_held;
         let n_ho = problem.held.len() as f64;
         let excess = (base.eval.chi2_held - n_ho).max(0.0);
         let penalty = k * n_tr.ln() + th.train_margin;
-        let ok =
-            d_tr > penalty && d_ho > th.held_base + 2.0 * k && d_ho > th.held_fraction * excess;
-        (ok, d_tr, d_ho, penalty)
+        Judgement {
+            wins: train_drop > penalty
+                && held_drop > th.held_base + 2.0 * k
+                && held_drop > th.held_fraction * excess,
+            train_drop,
+            held_drop,
+            penalty,
+        }
     };
     let mut reports: Vec<EffectReport> = vec![];
     let mut sig_singles: Vec<(Effect, Fitted, f64)> = vec![];
     for (e, f) in &singles {
-        let (ok, d_tr, d_ho, pen) = judge(&nom, f);
-        if ok {
+        let j = judge(&nom, f);
+        if j.wins {
             // Ranked by the held-out drop less a BIC-like price per parameter: look-alikes
             // explain the same residual within a few χ² units, and then the simpler physics
             // is the better explanation.
             let k =
                 (model::n_params(&problem, &f.spec) - model::n_params(&problem, &nom.spec)) as f64;
-            sig_singles.push((*e, f.clone(), d_ho - k * n_ho.ln()));
+            sig_singles.push((*e, f.clone(), j.held_drop - k * n_ho.ln()));
         }
         reports.push(EffectReport {
             id: e.id(),
-            significant: ok,
-            evidence: d_ho,
-            train_drop: d_tr,
-            bic_penalty: pen,
+            significant: j.wins,
+            evidence: j.held_drop,
+            train_drop: j.train_drop,
+            bic_penalty: j.penalty,
             given: None,
             refitted: true,
             params: params_of(&problem, f, *e),
@@ -715,20 +731,24 @@ pub fn diagnose_with(
                 let start = combine(&spec, &fa, fb);
                 fit_model(&problem, &spec, &[start], refit_opts, fan).map(|fp| (*b, fp))
             });
-            let mut best_pair: Option<(Effect, Fitted, (f64, f64, f64))> = None;
+            let mut best_pair: Option<(Effect, Fitted, Judgement)> = None;
             for (b, fp) in pairs.into_iter().flatten() {
-                let (ok, d_tr, d_ho, pen) = judge(&fa, &fp);
-                if ok && best_pair.as_ref().is_none_or(|p| d_ho > p.2 .1) {
-                    best_pair = Some((b, fp, (d_tr, d_ho, pen)));
+                let j = judge(&fa, &fp);
+                if j.wins
+                    && best_pair
+                        .as_ref()
+                        .is_none_or(|p| j.held_drop > p.2.held_drop)
+                {
+                    best_pair = Some((b, fp, j));
                 }
             }
-            if let Some((b, mut fp, (d_tr, d_ho, pen))) = best_pair {
+            if let Some((b, mut fp, j)) = best_pair {
                 scan_step_parameters(&problem, &mut fp);
                 // The second effect's evidence is what it adds to the first.
                 if let Some(r) = reports.iter_mut().find(|r| r.id == b.id()) {
-                    r.evidence = d_ho;
-                    r.train_drop = d_tr;
-                    r.bic_penalty = pen;
+                    r.evidence = j.held_drop;
+                    r.train_drop = j.train_drop;
+                    r.bic_penalty = j.penalty;
                     r.given = Some(a.id());
                     r.held_out_nrmse = Some(held_nrmse(&problem, &fp));
                 }
@@ -808,6 +828,27 @@ pub fn diagnose_with(
         base_position,
         weighting: problem.weighting(),
     })
+}
+
+/// The point of a start grid (full θ of `effect`'s single model) with the lowest χ²_train,
+/// each point one simulation with everything else held, side by side on `fan`; the first of
+/// equals. For the parameters whose χ² has basins no local fit finds from a guess: a mode's
+/// frequency, a delay of many samples.
+fn best_on_grid(
+    problem: &Problem,
+    effect: Effect,
+    points: &[Vec<f64>],
+    fan: &dyn Fan,
+) -> Option<Vec<f64>> {
+    let spec = ModelSpec::with(&[effect]);
+    let chi2 = fan::map(fan, points.len(), |i| {
+        problem.evaluate(&spec, &points[i]).map(|e| e.chi2_train)
+    });
+    chi2.into_iter()
+        .zip(points)
+        .filter_map(|(c, t)| Some((c?, t)))
+        .min_by(|a, b| a.0.total_cmp(&b.0))
+        .map(|(_, t)| t.clone())
 }
 
 /// Segments a file declares in `[notes]` (`kind`, `start_index`, and `end_index` or
@@ -1150,9 +1191,8 @@ impl StartContext {
                 // range and of each gap between the nominal terms; but none within a factor
                 // 2 of a nominal term, which a third term there would only split (a large
                 // slow term the nominal fit put halfway is missing in the gap it left).
-                let mut taus: Vec<f64> = (0..NOMINAL_TERMS)
-                    .map(|i| base[3 + NOMINAL_TERMS + i].exp())
-                    .collect();
+                let nominal = problem.material(&ModelSpec::nominal(), &base);
+                let mut taus: Vec<f64> = nominal.terms.iter().map(|t| t.tau_s).collect();
                 taus.sort_by(f64::total_cmp);
                 let (fast, slow) = (3.0 / fs, 0.3 * self.record_s);
                 let mut at: Vec<f64> = vec![fast, (fast * slow).sqrt(), slow];
@@ -1171,7 +1211,6 @@ impl StartContext {
                 // start an octave away the fit bends the material instead. A coarse grid of
                 // modes up to just below Nyquist, each one simulation with everything else
                 // held, puts the fit in the right basin for the price of 30 simulations.
-                let spec = ModelSpec::with(&[Effect::InstrumentResonance]);
                 let (f_lo, f_hi) = (50.0f64, 0.475 * fs);
                 let n = 15;
                 let points: Vec<Vec<f64>> = (0..n)
@@ -1180,16 +1219,10 @@ impl StartContext {
                         [1.5f64, 5.0].map(|q| with(&[f.ln(), q.ln()]))
                     })
                     .collect();
-                let chi2 = fan::map(fan, points.len(), |i| {
-                    problem.evaluate(&spec, &points[i]).map(|e| e.chi2_train)
-                });
-                let mut grid: Vec<(f64, Vec<f64>)> = chi2
-                    .into_iter()
-                    .zip(points)
-                    .filter_map(|(c, t)| Some((c?, t)))
-                    .collect();
-                grid.sort_by(|a, b| a.0.total_cmp(&b.0));
-                let mut out: Vec<Vec<f64>> = grid.into_iter().take(1).map(|g| g.1).collect();
+                let mut out: Vec<Vec<f64>> =
+                    best_on_grid(problem, Effect::InstrumentResonance, &points, fan)
+                        .into_iter()
+                        .collect();
                 out.extend(
                     [self.resonance_guess_hz, fs / 4.0]
                         .iter()
@@ -1208,24 +1241,17 @@ impl StartContext {
                 // the top line: a local fit from a sample or two never gets there. A grid of
                 // quarter-octave steps up to 64 samples, each one simulation with the nominal
                 // parameters held, puts the best basin among the starts.
-                let spec = ModelSpec::with(&[Effect::ChannelDelay]);
                 let max_s = (64.0 / fs).min(0.05 * self.record_s);
                 let points: Vec<Vec<f64>> = (0..)
                     .map(|i| 0.5 / fs * 2f64.powf(i as f64 / 4.0))
                     .take_while(|&d| d <= max_s)
                     .map(|d| with(&[d.ln()]))
                     .collect();
-                let chi2 = fan::map(fan, points.len(), |i| {
-                    problem.evaluate(&spec, &points[i]).map(|e| e.chi2_train)
-                });
-                let best = chi2
-                    .into_iter()
-                    .zip(&points)
-                    .filter_map(|(c, t)| Some((c?, t)))
-                    .min_by(|a, b| a.0.total_cmp(&b.0))
-                    .map(|g| g.1.clone());
                 // The grid's best first: a refit takes only the first start of a set.
-                let mut out: Vec<Vec<f64>> = best.into_iter().collect();
+                let mut out: Vec<Vec<f64>> =
+                    best_on_grid(problem, Effect::ChannelDelay, &points, fan)
+                        .into_iter()
+                        .collect();
                 for d in [0.5 / fs, 2.0 / fs] {
                     let t = with(&[d.ln()]);
                     if !out.contains(&t) {
@@ -1247,8 +1273,30 @@ impl StartContext {
 #[cfg(test)]
 mod tests {
     use super::corpus::{nominal_twin, protocol_drive, simulate};
-    use super::{diagnose, split_train_held, BasePosition, DiagnoseOptions};
+    use super::{diagnose, split_train_held, BasePosition, DiagnoseOptions, Diagnosis};
     use crate::recording::Drive;
+    use crate::twin::detector::Mains;
+    use crate::twin::TwinConfig;
+
+    /// The diagnosis of `twin` recorded over the corpus protocol at `fs`.
+    fn diagnosed(twin: &TwinConfig, fs: f64) -> Diagnosis {
+        let (drive_v, _) = protocol_drive(fs);
+        diagnose(
+            &simulate(twin, &drive_v, fs, None),
+            &DiagnoseOptions::default(),
+        )
+        .unwrap()
+    }
+
+    /// 50 Hz pick-up of `line` V with a third harmonic of `third` V.
+    fn mains_50hz(line: f64, third: f64) -> Option<Mains> {
+        Some(Mains {
+            freq_hz: 50.0,
+            amplitude_v: line,
+            second_harmonic_v: 0.0,
+            third_harmonic_v: third,
+        })
+    }
 
     /// `drive_nm` is a closed-loop stage's commanded position (the recording format): its
     /// loop removes piezo creep and hysteresis, so neither is a candidate there, while the
@@ -1286,23 +1334,14 @@ mod tests {
     /// amplitude recovered; a pure line keeps the plain form (no harmonic parameters).
     #[test]
     fn mains_harmonics_are_fitted_when_present() {
-        let fs = 5000.0;
-        let (drive_v, _) = protocol_drive(fs);
         let twin = nominal_twin(12);
         let sigma = twin.detector.white_noise_v;
         let (a1, a3) = (1.5 * sigma, 0.6 * sigma);
         // The top effect's parameters (name → value) with a third harmonic of `third` V.
         let top_with = |third: f64| {
             let mut twin = twin.clone();
-            twin.detector.mains = Some(crate::twin::detector::Mains {
-                freq_hz: 50.0,
-                amplitude_v: a1,
-                second_harmonic_v: 0.0,
-                third_harmonic_v: third,
-            });
-            let rec = simulate(&twin, &drive_v, fs, None);
-            let d = diagnose(&rec, &DiagnoseOptions::default()).unwrap();
-            let top = d.effects[0].clone();
+            twin.detector.mains = mains_50hz(a1, third);
+            let top = diagnosed(&twin, 5000.0).effects[0].clone();
             assert!(top.significant && top.id == "mains_interference", "{top:?}");
             move |name: &str| top.params.iter().find(|p| p.name == name).map(|p| p.value)
         };
@@ -1327,25 +1366,18 @@ mod tests {
         );
     }
 
-    /// Mains pick-up and a detector drift at once: both named, the stronger first, and the
-    /// second's evidence is what it adds to the model that already has the first (the pair's
-    /// own held-out NRMSE), not its drop over the nominal model alone.
+    /// Mains pick-up and a detector drift at once: both named, and the second's evidence is
+    /// what it adds to the model that already has the first (with the pair's own held-out
+    /// NRMSE), not its drop over the nominal model alone.
     #[test]
     fn a_pairs_second_effect_is_judged_over_the_first() {
         let fs = 5000.0;
-        let (drive_v, _) = protocol_drive(fs);
         let mut twin = nominal_twin(13);
         let sigma = twin.detector.white_noise_v;
-        twin.detector.mains = Some(crate::twin::detector::Mains {
-            freq_hz: 50.0,
-            amplitude_v: 1.5 * sigma,
-            second_harmonic_v: 0.0,
-            third_harmonic_v: 0.0,
-        });
-        let record_s = drive_v.len() as f64 / fs;
+        twin.detector.mains = mains_50hz(1.5 * sigma, 0.0);
+        let record_s = protocol_drive(fs).0.len() as f64 / fs;
         twin.detector.drift_v_per_s = 2.0 * sigma / record_s;
-        let rec = simulate(&twin, &drive_v, fs, None);
-        let d = diagnose(&rec, &DiagnoseOptions::default()).unwrap();
+        let d = diagnosed(&twin, fs);
         let sig: Vec<_> = d.effects.iter().filter(|e| e.significant).collect();
         let mut ids: Vec<_> = sig.iter().map(|e| e.id).collect();
         ids.sort();
@@ -1365,11 +1397,9 @@ mod tests {
     #[test]
     fn a_delay_of_many_samples_is_found() {
         let (fs, samples) = (2500.0, 8.0);
-        let (drive_v, _) = protocol_drive(fs);
         let mut twin = nominal_twin(14);
         twin.detector.delay_s = samples / fs;
-        let rec = simulate(&twin, &drive_v, fs, None);
-        let d = diagnose(&rec, &DiagnoseOptions::default()).unwrap();
+        let d = diagnosed(&twin, fs);
         let top = &d.effects[0];
         assert!(top.significant && top.id == "channel_delay", "{top:?}");
         let delay = top.params.iter().find(|p| p.name == "delay_s").unwrap();
