@@ -2,7 +2,9 @@
 //! catalog effect near the noise floor on each seed, masked cases, pairs, clean and 1/f nulls)
 //! and on the shared real JPK recording.
 //!
-//! Asserted: the issue's ≥ 90 % top-1 accuracy and no significant effect on any null case;
+//! Asserted: the corpus itself keeps its promises (`corpus::audit`, `audit_composition`:
+//! the sizing rule, contact history, masked and pair rules, clean nulls, round trip, make-up);
+//! the issue's ≥ 90 % top-1 accuracy and no significant effect on any null case;
 //! the held-out NRMSE improves by ≥ 30 % on at least 90 % of the effect cases, and the
 //! held-out model error above the noise floor shrinks by ≥ 30 % on at least 90 % too. The
 //! corpus sizes its near-floor effects at 1.2–1.8 σ of what a full nominal refit leaves: the
@@ -10,14 +12,25 @@
 //! 1 − 1/√(1 + m²), which is 29 % at 1 σ (see `corpus`'s sizing rule).
 
 use viscoprobe_core::diagnose::bench::score;
-use viscoprobe_core::diagnose::corpus::concealed_corpus_with;
+use viscoprobe_core::diagnose::corpus::{audit, audit_composition, concealed_corpus_with};
 use viscoprobe_core::diagnose::{diagnose, DiagnoseOptions};
 use viscoprobe_daemon::cli::diagnose::run_corpus;
 use viscoprobe_daemon::fan::Threads;
 
 #[test]
 fn concealed_corpus_scores() {
-    let cases = concealed_corpus_with(&[1, 2, 3], &Threads::all_cores().unwrap());
+    let threads = Threads::all_cores().unwrap();
+    let cases = concealed_corpus_with(&[1, 2, 3], &threads);
+    // The corpus keeps its promises (sizing rule, contact history, masked and pair rules,
+    // clean nulls, round trip, distinct noise, make-up) before it proves anything.
+    let broken: Vec<String> = audit(&cases, &threads)
+        .into_iter()
+        .chain(audit_composition(&cases))
+        .collect();
+    assert!(
+        broken.is_empty(),
+        "the corpus breaks its promises: {broken:#?}"
+    );
     let outcomes = run_corpus(&cases, 2, |o, k, n| {
         eprintln!("[{k}/{n}] {} → {:?} (truth {:?})", o.name, o.top, o.truth)
     })

@@ -1625,15 +1625,377 @@ pub fn concealed_corpus_with(seeds: &[u64], fan: &dyn Fan) -> Vec<CorpusCase> {
     })
 }
 
+// ---------------------------------------------------------------------------------------------
+// Audit
+
+/// Checks, case by case, that a built corpus keeps its promises, and returns one line per
+/// broken promise, naming the case (empty: every promise kept). It is public so the
+/// acceptance test can audit the three-seed corpus it has already built for scoring, instead
+/// of core's tests building that corpus a second time.
+///
+/// Per case: the contact history of the protocol (free at rest, in contact through
+/// excitation and hold, free at the end); the sizing rule on the recorded multiples; the masked and pair rules; a null
+/// case carries no effect at all; the recording holds only instrument channels, validates,
+/// and writes and reads back bit for bit with its truth and segments. Over the corpus: every
+/// case has its own noise realisation. The cases are audited side by side through `fan`.
+pub fn audit(cases: &[CorpusCase], fan: &dyn Fan) -> Vec<String> {
+    let (drive, segments) = protocol_drive(FS_HZ);
+    let mut findings: Vec<String> = fan::map(fan, cases.len(), |i| {
+        audit_case(&cases[i], &drive, &segments)
+    })
+    .into_iter()
+    .flatten()
+    .collect();
+    let mut seeds: Vec<(u64, &str)> = cases
+        .iter()
+        .map(|c| (c.twin.seed, c.name.as_str()))
+        .collect();
+    seeds.sort_unstable();
+    for w in seeds.windows(2) {
+        if w[0].0 == w[1].0 {
+            findings.push(format!(
+                "{} and {} share the noise seed {}",
+                w[0].1, w[1].1, w[0].0
+            ));
+        }
+    }
+    findings
+}
+
+/// Checks the make-up of a corpus: every catalog id in at least three single-effect cases,
+/// every masked kind on at least two seeds (creep behind a slow term, a delay behind a ~1 ms
+/// term), at least four different pairs, at least three clean and three 1/f nulls, at most
+/// 60 cases, and nothing outside the catalog. One line per shortfall; a single seed falls
+/// short by design.
+pub fn audit_composition(cases: &[CorpusCase]) -> Vec<String> {
+    let mut findings = Vec::new();
+    for id in super::CATALOG {
+        let n = cases
+            .iter()
+            .filter(|c| matches!(c.kind, CaseKind::NearFloor | CaseKind::Masked))
+            .filter(|c| c.effects == [id])
+            .count();
+        if n < 3 {
+            findings.push(format!("{id}: {n} single-effect cases, needs at least 3"));
+        }
+    }
+    for id in MASKED {
+        let n = cases
+            .iter()
+            .filter(|c| c.kind == CaseKind::Masked && c.effects == [id])
+            .count();
+        if n < 2 {
+            findings.push(format!("{id}: {n} masked cases, needs at least 2"));
+        }
+    }
+    let mut pairs: Vec<Vec<&str>> = cases
+        .iter()
+        .filter(|c| c.kind == CaseKind::Pair)
+        .map(|c| {
+            let mut e = c.effects.clone();
+            e.sort_unstable();
+            e
+        })
+        .collect();
+    pairs.sort();
+    pairs.dedup();
+    if pairs.len() < 4 {
+        findings.push(format!("{} different pairs, needs at least 4", pairs.len()));
+    }
+    for null in ["clean/", "pink/"] {
+        let n = cases
+            .iter()
+            .filter(|c| c.kind == CaseKind::Null && c.name.starts_with(null))
+            .count();
+        if n < 3 {
+            findings.push(format!("{n} {null}null cases, needs at least 3"));
+        }
+    }
+    if cases.len() > 60 {
+        findings.push(format!("{} cases, at most 60", cases.len()));
+    }
+    for c in cases {
+        for e in &c.effects {
+            if !super::CATALOG.contains(e) {
+                findings.push(format!("{}: `{e}` is not a catalog id", c.name));
+            }
+        }
+    }
+    findings
+}
+
+/// Every promise one case makes; see [`audit`].
+fn audit_case(c: &CorpusCase, drive: &[f64], segments: &[Segment]) -> Vec<String> {
+    let mut f = Vec::new();
+    let mut check = |ok: bool, what: String| {
+        if !ok {
+            f.push(format!("{}: {what}", c.name));
+        }
+    };
+    // The protocol's contact history.
+    let (_, truth) = simulate_with_truth(&c.twin, drive, FS_HZ);
+    let rest = (0.5 * FS_HZ) as usize;
+    check(
+        truth[..rest].iter().all(|t| !t.in_contact),
+        "in contact during the rest before the approach".into(),
+    );
+    check(
+        truth[segments[1].start_index..segments[2].end_index]
+            .iter()
+            .all(|t| t.in_contact),
+        "loses contact during the excitation or the hold".into(),
+    );
+    check(
+        truth[truth.len().saturating_sub(200)..]
+            .iter()
+            .all(|t| !t.in_contact),
+        "still in contact at the end of the retract".into(),
+    );
+    check(
+        c.noise_sigma_v == c.twin.detector.white_noise_v,
+        format!(
+            "σ {} V recorded, the twin's white noise is {} V",
+            c.noise_sigma_v, c.twin.detector.white_noise_v
+        ),
+    );
+    // The sizing rule, on the recorded multiples (that they are what a fresh nominal refit
+    // leaves of the twin against its baseline is checked in core's tests on seed 1: the
+    // refit is the same code that recorded them, and three refits per case would double
+    // the acceptance test's cost).
+    let m = c.combined_rms_multiple;
+    if c.kind != CaseKind::Null {
+        check(
+            m.is_finite() && m > 0.0,
+            format!("the effects leave {m} σ after the nominal refit"),
+        );
+        if let [s] = &c.sizes[..] {
+            check(
+                (s.rms_multiple - m).abs() < 1e-9 * m,
+                format!(
+                    "{} recorded at {} σ, but the case at {m} σ",
+                    s.id, s.rms_multiple
+                ),
+            );
+            let exceeds = s.note.as_deref().is_some_and(|n| n.contains("exceeds"));
+            if exceeds && m > s.target_multiple {
+                check(
+                    s.id == "instrument_resonance",
+                    format!("{} exceeds its target, which only a resonance may", s.id),
+                );
+            } else {
+                check(
+                    (m / s.target_multiple - 1.0).abs() < 0.10,
+                    format!("{m} σ, intended {} σ ({:?})", s.target_multiple, s.note),
+                );
+            }
+            if c.kind == CaseKind::NearFloor && !exceeds {
+                check(
+                    (1.1..1.9).contains(&m),
+                    format!("{m} σ is not near the floor (1.1–1.9 σ)"),
+                );
+            }
+        }
+    }
+    match c.kind {
+        CaseKind::NearFloor => check(
+            c.effects.len() == 1 && c.sizes.len() == 1,
+            "a near-floor case has one effect".into(),
+        ),
+        CaseKind::Masked => {
+            check(c.masker.is_some(), "masked, but no look-alike named".into());
+            check(
+                c.effects.len() == 1 && c.sizes.len() == 1,
+                "a masked case has one effect".into(),
+            );
+            if let Some(s) = c.sizes.first() {
+                let m = s.rms_multiple;
+                check(
+                    (1.7..2.3).contains(&m),
+                    format!("masked at {m} σ, not 1.7–2.3 σ"),
+                );
+            }
+            // The look-alike is part of the baseline, which the nominal model can hold.
+            check(
+                c.baseline.sample.material.order() == 2,
+                "the baseline material is not of order two".into(),
+            );
+            let terms = &c.twin.sample.material.terms;
+            if c.effects == ["piezo_creep"] {
+                check(
+                    terms.first().is_some_and(|t| t.tau_s >= 0.5),
+                    "creep is not behind a slow (≥ 0.5 s) material term".into(),
+                );
+            }
+            if c.effects == ["channel_delay"] {
+                check(
+                    terms
+                        .get(1)
+                        .is_some_and(|t| (0.7e-3..1.3e-3).contains(&t.tau_s)),
+                    "the delay is not behind a 0.7–1.3 ms material term".into(),
+                );
+            }
+        }
+        CaseKind::Pair => {
+            check(
+                c.effects.len() == 2 && c.sizes.len() == 2 && c.effects[0] != c.effects[1],
+                format!("a pair of {:?}", c.effects),
+            );
+            if let [a, b] = &c.sizes[..] {
+                check(
+                    a.rms_multiple >= b.rms_multiple,
+                    "the stronger effect is not listed first".into(),
+                );
+                // The visible parts of two effects may overlap (a nonlinear nominal refit
+                // can trade one against the other: measured 0.74 for adhesion beside a
+                // cone), but a pair never hides most of its stronger effect.
+                check(
+                    c.combined_rms_multiple >= 0.7 * a.rms_multiple,
+                    format!(
+                        "together {} σ, under 0.7 of the stronger's {} σ",
+                        c.combined_rms_multiple, a.rms_multiple
+                    ),
+                );
+                for s in [a, b] {
+                    if s.note.is_none() {
+                        check(
+                            (s.rms_multiple / s.target_multiple - 1.0).abs() < 0.1
+                                && (1.4..2.7).contains(&s.rms_multiple),
+                            format!(
+                                "{} at {} σ, intended {} σ",
+                                s.id, s.rms_multiple, s.target_multiple
+                            ),
+                        );
+                    }
+                }
+                check(
+                    c.name.starts_with(&format!("{}+{}/pair/", a.id, b.id)),
+                    "not named strongest first".into(),
+                );
+            }
+        }
+        CaseKind::Null => {
+            let t = &c.twin;
+            let d = &t.detector;
+            let clean = c.effects.is_empty()
+                && c.sizes.is_empty()
+                && *t == c.baseline
+                && t.actuator.modes.is_empty()
+                && t.actuator.hysteresis.is_none()
+                && t.actuator.creep.is_none()
+                && t.cantilever.first_mode.is_none()
+                && t.sample.material.order() == 2
+                && t.sample.adhesion_nn.is_none()
+                && t.sample.thickness_nm.is_none()
+                && matches!(t.tip, TipConfig::Sphere { .. })
+                && t.drag.is_none()
+                && (d.drift_v_per_s, d.delay_s, d.cubic_per_v2) == (0.0, 0.0, 0.0)
+                && d.mains.is_none();
+            check(clean, "a null case carries an effect".into());
+            let pink = if c.name.starts_with("pink/") {
+                d.white_noise_v
+            } else {
+                0.0
+            };
+            check(
+                d.pink_noise_v == pink,
+                format!("1/f noise {} V, expected {pink} V", d.pink_noise_v),
+            );
+        }
+    }
+    f.extend(audit_recording(c));
+    f
+}
+
+/// Only instrument channels; valid; written and read back bit for bit; the truth and the
+/// segments in the sidecar; the declared tip the nominal sphere.
+fn audit_recording(c: &CorpusCase) -> Vec<String> {
+    let mut f = Vec::new();
+    let mut check = |ok: bool, what: String| {
+        if !ok {
+            f.push(format!("{}: {what}", c.name));
+        }
+    };
+    let r = &c.recording;
+    check(
+        r.len() == N_SAMPLES,
+        format!("{} samples, not {N_SAMPLES}", r.len()),
+    );
+    check(
+        r.reference_deflection_v.is_none()
+            && r.measured_height_nm.is_none()
+            && r.extra_columns.is_empty()
+            && matches!(r.drive, Drive::Volts(_)),
+        "carries more than drive_v and deflection_v".into(),
+    );
+    check(
+        matches!(r.meta.tip, Tip::Sphere { .. }),
+        "the declared tip is not a sphere".into(),
+    );
+    if let Err(e) = r.validate() {
+        check(false, format!("does not validate: {e}"));
+    }
+    let (mut csv, mut sidecar) = (Vec::new(), Vec::new());
+    match r.write(&mut csv, &mut sidecar) {
+        Err(e) => check(false, format!("cannot be written: {e}")),
+        Ok(()) => match Recording::read(&csv[..], &sidecar[..]) {
+            Err(e) => check(false, format!("cannot be read back: {e}")),
+            Ok(back) => {
+                check(
+                    back.warnings.is_empty(),
+                    format!("reads back with warnings {:?}", back.warnings),
+                );
+                check(back == *r, "does not read back bit for bit".into());
+                let text = String::from_utf8_lossy(&sidecar);
+                check(
+                    text.contains("[[notes.segments]]"),
+                    "no segments in the written sidecar".into(),
+                );
+            }
+        },
+    }
+    let truth = r.meta.truth.as_ref();
+    check(
+        truth.and_then(|t| t.get("case")).and_then(|v| v.as_str()) == Some(c.name.as_str()),
+        "the truth does not name the case".into(),
+    );
+    check(
+        truth
+            .and_then(|t| t.get("effects"))
+            .and_then(|v| v.as_array())
+            .map(|a| a.len())
+            == Some(c.effects.len()),
+        "the truth lists another number of effects".into(),
+    );
+    let twin: Option<TwinConfig> = truth
+        .and_then(|t| t.get("twin"))
+        .and_then(|v| v.clone().try_into().ok());
+    check(
+        twin.as_ref() == Some(&c.twin),
+        "the truth's twin is not the case's".into(),
+    );
+    check(
+        r.meta
+            .notes
+            .as_ref()
+            .and_then(|n| n.get("segments"))
+            .and_then(|v| v.as_array())
+            .map(|a| a.len())
+            == Some(4),
+        "the notes do not hold the four segments".into(),
+    );
+    f
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use std::sync::OnceLock;
 
-    /// The corpus of seeds 1–3, built once for all tests.
+    /// The corpus of seed 1, built once for all tests. The acceptance test builds seeds
+    /// 1–3 on threads, scores them and audits them ([`audit`], [`audit_composition`]).
     fn corpus() -> &'static [CorpusCase] {
         static CORPUS: OnceLock<Vec<CorpusCase>> = OnceLock::new();
-        CORPUS.get_or_init(|| concealed_corpus(&[1, 2, 3]))
+        CORPUS.get_or_init(|| concealed_corpus(&[1]))
     }
 
     fn drive() -> Vec<f64> {
@@ -1688,30 +2050,6 @@ mod tests {
         }
     }
 
-    /// Every case, look-alikes and effects included, follows the protocol's contact history:
-    /// free at rest, in contact through excitation and hold, free again at the end.
-    #[test]
-    fn every_case_makes_and_breaks_contact() {
-        let (drive, segs) = protocol_drive(FS_HZ);
-        for c in corpus() {
-            let (_, truth) = simulate_with_truth(&c.twin, &drive, FS_HZ);
-            let rest = (0.5 * FS_HZ) as usize;
-            assert!(truth[..rest].iter().all(|t| !t.in_contact), "{}", c.name);
-            assert!(
-                truth[segs[1].start_index..segs[2].end_index]
-                    .iter()
-                    .all(|t| t.in_contact),
-                "{}",
-                c.name
-            );
-            assert!(
-                truth[N_SAMPLES - 200..].iter().all(|t| !t.in_contact),
-                "{}",
-                c.name
-            );
-        }
-    }
-
     /// Adhesion shows as a tensile deflection just before the pull-off.
     #[test]
     fn adhesion_pulls_off_under_tension() {
@@ -1723,102 +2061,40 @@ mod tests {
         assert!(!truth.last().unwrap().in_contact);
     }
 
+    /// The same seed gives the same recordings, bit for bit, whatever order the cases are
+    /// built in: one case of each kind of seed 1, built again last to first.
     #[test]
     fn same_seed_same_recordings() {
         let (drive, segs) = protocol_drive(FS_HZ);
-        let a: Vec<CorpusCase> = near_floor_plans(7)
-            .into_iter()
-            .take(4)
-            .map(|p| build(p, &drive, &segs))
-            .collect();
-        let b: Vec<CorpusCase> = near_floor_plans(7)
-            .into_iter()
-            .take(4)
-            .map(|p| build(p, &drive, &segs))
-            .collect();
-        for (x, y) in a.iter().zip(&b) {
-            assert_eq!(x.recording, y.recording, "{}", x.name);
-            assert_eq!(x.twin, y.twin);
-        }
-        // And the corpus is the same when built again (the first seed's cases).
-        let again = concealed_corpus(&[1]);
-        let first: Vec<&CorpusCase> = corpus()
-            .iter()
-            .filter(|c| c.name.ends_with("/seed1"))
-            .collect();
-        assert_eq!(again.len(), first.len());
-        for (x, y) in again.iter().zip(first) {
-            assert_eq!(x.recording, y.recording, "{}", x.name);
-        }
-    }
-
-    /// Masked cases: each kind on at least two seeds, the look-alike in the baseline, only the
-    /// effect between baseline and truth. Pairs: at least four different pairs, strongest
-    /// first, neither cancelling the other.
-    #[test]
-    fn masked_and_pair_cases() {
-        for id in MASKED {
-            let cases: Vec<&CorpusCase> = corpus()
+        let mut plans: Vec<Plan> = near_floor_plans(1).into_iter().take(2).collect();
+        plans.push(masked_plan(1, 0));
+        plans.push(pair_plan(1, 0));
+        plans.extend(null_plans(1));
+        let plans: Vec<Mutex<Option<Plan>>> =
+            plans.into_iter().map(|p| Mutex::new(Some(p))).collect();
+        let again = fan::map(&super::super::fan::tests::Reversed, plans.len(), |i| {
+            build(plans[i].lock().unwrap().take().unwrap(), &drive, &segs)
+        });
+        let first_of = |kind: CaseKind, skip: usize| {
+            corpus()
                 .iter()
-                .filter(|c| c.kind == CaseKind::Masked && c.effects == [id])
-                .collect();
-            assert!(cases.len() >= 2, "{id}: {}", cases.len());
-            for c in cases {
-                assert!(c.masker.is_some(), "{}", c.name);
-                let m = c.sizes[0].rms_multiple;
-                assert!((1.7..2.3).contains(&m), "{}: {m}", c.name);
-                // The look-alike is part of the baseline (the nominal model can hold it).
-                assert_eq!(c.baseline.sample.material.order(), 2, "{}", c.name);
-            }
-        }
-        let creep = corpus()
-            .iter()
-            .find(|c| c.name.starts_with("piezo_creep/masked"))
-            .unwrap();
-        assert!(creep.twin.sample.material.terms[0].tau_s >= 0.5);
-        let delay = corpus()
-            .iter()
-            .find(|c| c.name.starts_with("channel_delay/masked"))
-            .unwrap();
-        let fast = delay.twin.sample.material.terms[1].tau_s;
-        assert!((0.7e-3..1.3e-3).contains(&fast), "{fast}");
-        let pairs: Vec<&CorpusCase> = corpus()
-            .iter()
-            .filter(|c| c.kind == CaseKind::Pair)
-            .collect();
-        let mut distinct: Vec<Vec<&str>> = pairs
-            .iter()
-            .map(|c| {
-                let mut e = c.effects.clone();
-                e.sort_unstable();
-                e
-            })
-            .collect();
-        distinct.sort();
-        distinct.dedup();
-        assert!(distinct.len() >= 4, "{} pairs", distinct.len());
-        for c in pairs {
-            assert_eq!(c.effects.len(), 2);
-            assert_ne!(c.effects[0], c.effects[1]);
-            let (a, b) = (&c.sizes[0], &c.sizes[1]);
-            assert!(a.rms_multiple >= b.rms_multiple, "{}", c.name);
-            // The visible parts of two effects may overlap (a nonlinear nominal refit can
-            // trade one against the other: measured 0.74 for adhesion beside a cone), but a
-            // pair never hides most of its stronger effect.
-            assert!(
-                c.combined_rms_multiple >= 0.7 * a.rms_multiple,
-                "{}: combined {} vs {}",
-                c.name,
-                c.combined_rms_multiple,
-                a.rms_multiple
-            );
-            for s in [a, b] {
-                if s.note.is_none() {
-                    assert!((s.rms_multiple / s.target_multiple - 1.0).abs() < 0.1);
-                    assert!((1.4..2.7).contains(&s.rms_multiple), "{}", c.name);
-                }
-            }
-            assert!(c.name.starts_with(&format!("{}+{}/pair/", a.id, b.id)));
+                .filter(|c| c.kind == kind)
+                .nth(skip)
+                .unwrap()
+        };
+        let expected = [
+            first_of(CaseKind::NearFloor, 0),
+            first_of(CaseKind::NearFloor, 1),
+            first_of(CaseKind::Masked, 0),
+            first_of(CaseKind::Pair, 0),
+            first_of(CaseKind::Null, 0),
+            first_of(CaseKind::Null, 1),
+        ];
+        for (x, y) in again.iter().zip(expected) {
+            assert_eq!(x.name, y.name);
+            assert_eq!(x.recording, y.recording, "{}", x.name);
+            assert_eq!(x.twin, y.twin, "{}", x.name);
+            assert_eq!(x.sizes, y.sizes, "{}", x.name);
         }
     }
 
@@ -1838,19 +2114,36 @@ mod tests {
         // Two independent realisations: the difference is σ·√2.
         let s = a.detector.white_noise_v * 2f64.sqrt();
         assert!((d / s - 1.0).abs() < 0.05, "{d} vs {s}");
-        // Every case of the corpus has its own noise realisation.
-        let mut seeds: Vec<u64> = corpus().iter().map(|c| c.twin.seed).collect();
-        seeds.sort_unstable();
-        seeds.dedup();
-        assert_eq!(seeds.len(), corpus().len());
     }
 
-    /// What the nominal refit leaves of the effects, recomputed from the case's twin and
-    /// baseline, is the recorded multiple of σ; a single effect sits within 10 % of its
-    /// target — the bounded ones by a quieter detector — except a mode that exceeds it even
-    /// just below Nyquist, which may only be larger.
+    /// Seed 1 keeps every per-case promise (the acceptance test audits all three seeds on
+    /// the corpus it scores), and its make-up falls short exactly where one seed must: the
+    /// masked kinds and pairs are spread over three seeds.
     #[test]
-    fn effects_are_sized_by_the_rule() {
+    fn seed_one_keeps_its_promises() {
+        let findings = audit(corpus(), &Serial);
+        assert!(findings.is_empty(), "{findings:#?}");
+        let short = audit_composition(corpus());
+        // 12 ids with 1–2 single-effect cases, 5 masked kinds with 0–1, 3 pairs, 1 clean
+        // and 1 pink null.
+        assert_eq!(short.len(), 12 + 5 + 1 + 2, "{short:#?}");
+        for id in super::super::CATALOG {
+            assert!(
+                short
+                    .iter()
+                    .any(|f| f.starts_with(&format!("{id}: ")) && f.contains("single")),
+                "{id}: {short:#?}"
+            );
+        }
+        assert!(short.contains(&"piezo_creep: 0 masked cases, needs at least 2".to_string()));
+        assert!(short.contains(&"3 different pairs, needs at least 4".to_string()));
+        assert!(short.contains(&"1 clean/null cases, needs at least 3".to_string()));
+    }
+
+    /// The recorded multiples are what a fresh nominal refit ([`NominalRefit`]) leaves of
+    /// each case's twin against its baseline, in units of the case's σ.
+    #[test]
+    fn recorded_multiples_are_what_a_fresh_refit_leaves() {
         let drive = drive();
         for c in corpus().iter().filter(|c| c.kind != CaseKind::Null) {
             let refit = NominalRefit::new(&c.baseline, &drive);
@@ -1858,121 +2151,58 @@ mod tests {
             let m = refit.unabsorbed_rms(&clean) / c.noise_sigma_v;
             assert!(
                 (m - c.combined_rms_multiple).abs() < 1e-9 * m.max(1.0),
-                "{}",
-                c.name
+                "{}: {m} σ, recorded {} σ",
+                c.name,
+                c.combined_rms_multiple
             );
-            assert_eq!(c.noise_sigma_v, c.twin.detector.white_noise_v, "{}", c.name);
-            if c.effects.len() == 1 {
-                let s = &c.sizes[0];
-                assert!((s.rms_multiple - m).abs() < 1e-9 * m, "{}", c.name);
-                let exceeds = s.note.as_deref().is_some_and(|n| n.contains("exceeds"));
-                if exceeds && m > s.target_multiple {
-                    assert_eq!(s.id, "instrument_resonance", "{}", c.name);
-                } else {
-                    assert!(
-                        (m / s.target_multiple - 1.0).abs() < 0.10,
-                        "{}: {m} σ, intended {} ({:?})",
-                        c.name,
-                        s.target_multiple,
-                        s.note
-                    );
-                }
-                if c.kind == CaseKind::NearFloor && !exceeds {
-                    assert!((1.1..1.9).contains(&m), "{}: {m}", c.name);
-                }
-            }
         }
     }
 
+    /// The audit is not a formality: each broken promise is reported, naming its case.
     #[test]
-    fn every_catalog_id_in_three_single_effect_cases() {
-        for id in super::super::CATALOG {
-            let n = corpus()
-                .iter()
-                .filter(|c| matches!(c.kind, CaseKind::NearFloor | CaseKind::Masked))
-                .filter(|c| c.effects == [id])
-                .count();
-            assert!(n >= 3, "{id}: {n} single-effect cases");
-        }
-        assert!(corpus().len() <= 60, "{} cases", corpus().len());
-        for c in corpus() {
-            for e in &c.effects {
-                assert!(super::super::CATALOG.contains(e), "{}", c.name);
-            }
-        }
-    }
-
-    #[test]
-    fn null_cases_carry_no_effect() {
-        let nulls: Vec<&CorpusCase> = corpus()
-            .iter()
-            .filter(|c| c.kind == CaseKind::Null)
-            .collect();
-        assert!(
-            nulls
-                .iter()
-                .filter(|c| c.name.starts_with("clean/"))
-                .count()
-                >= 3
-        );
-        assert!(nulls.iter().filter(|c| c.name.starts_with("pink/")).count() >= 3);
-        for c in nulls {
-            assert!(c.effects.is_empty() && c.sizes.is_empty(), "{}", c.name);
-            assert_eq!(c.twin, c.baseline);
-            let t = &c.twin;
-            let d = &t.detector;
-            assert!(t.actuator.modes.is_empty() && t.actuator.hysteresis.is_none());
-            assert!(t.actuator.creep.is_none() && t.cantilever.first_mode.is_none());
-            assert_eq!(t.sample.material.order(), 2);
-            assert!(t.sample.adhesion_nn.is_none() && t.sample.thickness_nm.is_none());
-            assert!(matches!(t.tip, TipConfig::Sphere { .. }) && t.drag.is_none());
-            assert_eq!(
-                (d.drift_v_per_s, d.delay_s, d.cubic_per_v2),
-                (0.0, 0.0, 0.0)
+    fn the_audit_catches_broken_promises() {
+        let find = |kind: CaseKind| corpus().iter().find(|c| c.kind == kind).unwrap().clone();
+        let mut oversold = find(CaseKind::NearFloor);
+        oversold.sizes[0].rms_multiple *= 1.5;
+        let mut off_target = corpus()[1].clone();
+        off_target.sizes[0].rms_multiple *= 1.5;
+        off_target.combined_rms_multiple *= 1.5;
+        let mut noisier = find(CaseKind::Masked);
+        noisier.noise_sigma_v *= 2.0;
+        let mut dragged = find(CaseKind::Null);
+        dragged.twin.drag = Some(Drag {
+            coefficient_nn_s_per_nm: 1e-3,
+        });
+        let mut renamed = find(CaseKind::Pair);
+        renamed.name = "renamed/pair/seed1".into();
+        let mut twin_seed = find(CaseKind::Null);
+        twin_seed.name = "twin/null/seed1".into();
+        let cases = [
+            oversold,
+            noisier,
+            dragged,
+            renamed,
+            twin_seed.clone(),
+            twin_seed,
+            off_target,
+        ];
+        let findings = audit(&cases, &Serial);
+        for (case, what) in [
+            (&cases[0].name, "recorded at"),
+            (&cases[1].name, "recorded, the twin's white noise"),
+            (&cases[2].name, "a null case carries an effect"),
+            (&cases[3].name, "not named strongest first"),
+            (&cases[3].name, "the truth does not name the case"),
+            (&cases[4].name, "share the noise seed"),
+            (&cases[6].name, "intended"),
+        ] {
+            assert!(
+                findings
+                    .iter()
+                    .any(|f| f.contains(case.as_str()) && f.contains(what)),
+                "{case}: {what}: {findings:#?}"
             );
-            assert!(d.mains.is_none());
-            if c.name.starts_with("pink/") {
-                assert_eq!(d.pink_noise_v, d.white_noise_v);
-            } else {
-                assert_eq!(d.pink_noise_v, 0.0);
-            }
         }
-    }
-
-    /// Only instrument channels; valid; written and read back bit for bit; the truth and the
-    /// segments are in the sidecar; the declared tip is the nominal sphere.
-    #[test]
-    fn recordings_validate_and_round_trip() {
-        for c in corpus() {
-            let r = &c.recording;
-            assert_eq!(r.len(), N_SAMPLES);
-            assert!(r.reference_deflection_v.is_none() && r.measured_height_nm.is_none());
-            assert!(r.extra_columns.is_empty());
-            assert!(matches!(r.drive, Drive::Volts(_)));
-            assert!(matches!(r.meta.tip, Tip::Sphere { .. }), "{}", c.name);
-            r.validate().unwrap_or_else(|e| panic!("{}: {e}", c.name));
-            let (mut csv, mut toml) = (Vec::new(), Vec::new());
-            r.write(&mut csv, &mut toml).unwrap();
-            let back = Recording::read(&csv[..], &toml[..]).unwrap();
-            assert!(back.warnings.is_empty(), "{}: {:?}", c.name, back.warnings);
-            assert_eq!(&back, r, "{}", c.name);
-            let truth = r.meta.truth.as_ref().unwrap();
-            assert_eq!(truth["case"].as_str(), Some(c.name.as_str()));
-            let effects = truth["effects"].as_array().unwrap();
-            assert_eq!(effects.len(), c.effects.len());
-            let twin: TwinConfig = truth["twin"].clone().try_into().unwrap();
-            assert_eq!(twin, c.twin, "{}", c.name);
-            let segs = r.meta.notes.as_ref().unwrap()["segments"]
-                .as_array()
-                .unwrap();
-            assert_eq!(segs.len(), 4);
-        }
-        let text = {
-            let (mut csv, mut toml) = (Vec::new(), Vec::new());
-            corpus()[0].recording.write(&mut csv, &mut toml).unwrap();
-            String::from_utf8(toml).unwrap()
-        };
-        assert!(text.contains("[[notes.segments]]"), "{text}");
     }
 
     /// Prints the corpus: `cargo test --release -p viscoprobe-core corpus::tests::print -- --ignored --nocapture`.
