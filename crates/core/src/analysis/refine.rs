@@ -221,11 +221,11 @@ pub fn simulate_deflection(
             d = if f(g) >= 0.0 {
                 g
             } else {
-                let slope = |d: f64| {
+                let f_and_slope = |d: f64| {
                     let h = (g - d).max(1e-300);
-                    -expo * pow(h) / h - a
+                    (f(d), -expo * pow(h) / h - a)
                 };
-                decreasing_root(f, slope, (0.0, g), d, 1e-15 * g, 100)
+                decreasing_root(f_and_slope, (0.0, g), d, 1e-15 * g, 100)
             };
         } else {
             d = 0.0;
