@@ -47,6 +47,16 @@ fn run(
     (res, dir)
 }
 
+/// Every parameter within `tol_pct` of the truth, and the truth inside its 99.9 % interval
+/// (the 95 % interval widened by 3.29/1.96 on the side the truth lies, so the skewed
+/// intervals of the time constants keep their shape).
+///
+/// One run cannot test a 95 % interval's coverage: seven parameters all inside their 95 %
+/// intervals happens in only about 70 % of noise realisations, so such a test flips with any
+/// change that alters the realisation (it did, when the contact solve's `powf` became
+/// `h·√h`). The coverage *rate* is tested over 20 seeds in `fit_corpus.rs`; here a truth
+/// outside its 99.9 % interval (about 0.7 % of realisations for all seven) still fails, as do
+/// intervals too narrow by a factor 1.7.
 fn check_estimates(j: &serde_json::Value, tol_pct: f64) {
     for (name, err) in j["error_pct"].as_object().unwrap() {
         let e = err.as_f64().unwrap();
@@ -54,14 +64,22 @@ fn check_estimates(j: &serde_json::Value, tol_pct: f64) {
             e.abs() < tol_pct,
             "{name}: error {e:+.2} % exceeds {tol_pct} %"
         );
-        assert_eq!(
-            j["truth_in_ci95"][name], true,
-            "{name}: the 95 % interval misses the truth"
+        let est = j["params"][name].as_f64().unwrap();
+        let truth = j["truth"][name].as_f64().unwrap();
+        let ci = j["ci95"][name].as_array().unwrap();
+        let (lo, hi) = (ci[0].as_f64().unwrap(), ci[1].as_f64().unwrap());
+        assert!(lo < est && est < hi, "{name}: {est} outside [{lo}, {hi}]");
+        let widen = 3.29 / 1.96;
+        let (lo999, hi999) = (est - widen * (est - lo), est + widen * (hi - est));
+        assert!(
+            (lo999..=hi999).contains(&truth),
+            "{name}: truth {truth} outside the 99.9 % interval [{lo999}, {hi999}] \
+             (95 %: [{lo}, {hi}])"
         );
     }
 }
 
-/// `sim-pdms`: converged, every parameter within 2 % with intervals covering the truth, and
+/// `sim-pdms`: converged, every parameter within 2 % with its 99.9 % interval covering the truth, and
 /// report.json holds the documented keys in SI units.
 #[test]
 fn sim_pdms_run_converges_to_the_truth() {
@@ -98,7 +116,7 @@ fn sim_pdms_run_converges_to_the_truth() {
 
 /// `sim-realistic` (a resonance in the band, hysteresis, creep, drag, adhesion, a real
 /// detector): MIIC reaches < 1 % (2-norm) and < 3 % (∞-norm) within 8 steps in every
-/// iteration, and the estimates are within 5 % with intervals covering the truth.
+/// iteration, and the estimates are within 5 % with their 99.9 % intervals covering the truth.
 #[test]
 fn sim_realistic_run_tracks_and_estimates() {
     let (res, dir) = run("config/sim-realistic.toml", "real", None);
