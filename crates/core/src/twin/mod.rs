@@ -574,68 +574,52 @@ impl Twin {
         let (alpha, beta) = self.material.affine();
         let gap_m = (base_nm - self.soft_surface_nm()) * 1e-9;
         let k_si = k; // N/m
-        let corr = |h_m: f64| -> f64 {
+                      // The film's stiffening of the contact at indentation h (Dimitriadis et al. 2002, a
+                      // film bonded to a rigid substrate, ν ≈ 0.5), or `None` where there is no film: a
+                      // factor 1, applied as no division at all, which keeps two divisions off the
+                      // Newton step's critical path.
+        let film = |h_m: f64| -> Option<f64> {
             match (s.thickness_nm, self.cfg.tip) {
-                // Dimitriadis et al. (2002), film bonded to a rigid substrate, ν ≈ 0.5.
                 (Some(th), TipConfig::Sphere { radius_nm }) if h_m > 0.0 => {
                     let chi = (radius_nm * 1e-9 * h_m).sqrt() / (th * 1e-9);
-                    1.0 + 1.133 * chi
-                        + 1.283 * chi.powi(2)
-                        + 0.769 * chi.powi(3)
-                        + 0.0975 * chi.powi(4)
+                    Some(
+                        1.0 + 1.133 * chi
+                            + 1.283 * chi.powi(2)
+                            + 0.769 * chi.powi(3)
+                            + 0.0975 * chi.powi(4),
+                    )
                 }
-                _ => 1.0,
+                _ => None,
             }
         };
-        // g(d) = h^k − α·u(d) − β with h = gap − d, u = cf·(K·d + F_adh − F_ext)/corr(h);
-        // decreasing in d.
-        let g = |d_m: f64| -> f64 {
+        let unfilmed = |x: f64, film: Option<f64>| film.map_or(x, |c| x / c);
+        // g(d) = h^k − α·u(d) − β with h = gap − d, u = cf·(K·d + F_adh − F_ext)/film(h),
+        // decreasing in d, and its slope (which neglects the slow variation of the film's
+        // factor), from one evaluation of the shape function.
+        let g_and_slope = |d_m: f64| -> (f64, f64) {
             let h = gap_m - d_m;
-            let hk = contact.y_from_indentation(h);
-            hk - alpha * cf * (k_si * d_m + f_net_n) / corr(h.max(0.0)) - beta
+            let (hk, dhk) = contact.y_and_slope(h);
+            let c = film(h);
+            (
+                hk - unfilmed(alpha * cf * (k_si * d_m + f_net_n), c) - beta,
+                -dhk - unfilmed(alpha * cf * k_si, c),
+            )
         };
         let d_lo = -f_net_n / k_si;
         let touching = if self.in_contact {
-            g(d_lo) >= 0.0 && gap_m - d_lo > 0.0
+            g_and_slope(d_lo).0 >= 0.0 && gap_m - d_lo > 0.0
         } else {
             gap_m > 0.0 && contact.y_from_indentation(gap_m) > beta
         };
         let (d_m, u, share) = if touching {
             // Two or three Newton steps from the previous solution are what keep the twin far
-            // faster than real time. The slope neglects the slow variation of the substrate
-            // correction.
-            let slope = |d: f64| {
-                let h = (gap_m - d).max(1e-300);
-                -contact.shape_slope(h) - alpha * cf * k_si / corr(h)
-            };
-            // g and its slope from one evaluation of the shape function (the same numbers
-            // as `g` and `slope` apart, inside the bracket where h > 0).
-            let g_and_slope = |d_m: f64| -> (f64, f64) {
-                let h = gap_m - d_m;
-                if h <= 0.0 {
-                    return (g(d_m), slope(d_m));
-                }
-                let (hk, dhk) = contact.y_and_slope(h);
-                if s.thickness_nm.is_none() {
-                    // corr(h) = 1, and x/1 = x exactly: the same numbers, two divisions
-                    // fewer on the Newton step's critical path.
-                    return (
-                        hk - alpha * cf * (k_si * d_m + f_net_n) - beta,
-                        -dhk - alpha * cf * k_si,
-                    );
-                }
-                let c = corr(h);
-                (
-                    hk - alpha * cf * (k_si * d_m + f_net_n) / c - beta,
-                    -dhk - alpha * cf * k_si / c,
-                )
-            };
+            // faster than real time.
             let tol = 1e-14 * (1.0 + gap_m.abs());
             let d = decreasing_root(g_and_slope, (d_lo, gap_m.max(d_lo)), self.last_d_m, tol, 60);
-            let h = (gap_m - d).max(0.0);
+            let c = film(gap_m - d);
             // dd/dF_ext = −(∂g/∂F_ext)/(∂g/∂d), times K.
-            let share = -alpha * cf * k_si / corr(h) / slope(d);
-            (d, cf * (k_si * d + f_net_n) / corr(h), share)
+            let share = -unfilmed(alpha * cf * k_si, c) / g_and_slope(d).1;
+            (d, unfilmed(cf * (k_si * d + f_net_n), c), share)
         } else if let Some(d) = self.neck_hold(gap_m, d_lo, commit) {
             (d, 0.0, 1.0)
         } else {
