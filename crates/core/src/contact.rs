@@ -128,7 +128,7 @@ impl Contact {
             return 0.0;
         }
         match self.tip {
-            TipGeometry::Sphere { .. } => three_halves(h_m),
+            TipGeometry::Sphere { .. } => hertz_y_and_slope(h_m).0,
             TipGeometry::Cone { .. } => h_m * h_m,
             TipGeometry::BluntedCone { .. } => self.y_and_slope(h_m).0,
         }
@@ -153,11 +153,8 @@ impl Contact {
     #[inline]
     pub fn y_and_slope(&self, h_m: f64) -> (f64, f64) {
         match self.tip {
-            // The twin's Newton solve calls this for every step of every sample: one root.
-            TipGeometry::Sphere { .. } if h_m > 0.0 => {
-                let root = h_m.sqrt();
-                (h_m * root, 1.5 * root)
-            }
+            // The twin's Newton solve calls this for every step of every sample.
+            TipGeometry::Sphere { .. } if h_m > 0.0 => hertz_y_and_slope(h_m),
             TipGeometry::BluntedCone {
                 radius_m,
                 half_angle_rad,
@@ -166,7 +163,7 @@ impl Contact {
                 if h_m <= 0.0 {
                     (0.0, 0.0)
                 } else if h_m <= bc.h_t {
-                    (three_halves(h_m), 1.5 * h_m.sqrt())
+                    hertz_y_and_slope(h_m)
                 } else {
                     let p = bc.at(bc.s_from_h(h_m).0);
                     (bc.y_scale * p.g, 2.0 * bc.y_scale * p.a)
@@ -207,13 +204,15 @@ impl Contact {
     }
 }
 
-/// `h^{3/2}` as `h·√h`: the twin evaluates it in every Newton step of every simulated sample,
-/// and a general `powf` was 40 % of a diagnosis's time (the two agree within an ulp).
-fn three_halves(h: f64) -> f64 {
-    h * h.sqrt()
+/// A sphere's `(h^{3/2}, 1.5·h^{1/2})` from one square root (h > 0): `h^{3/2}` as `h·√h`,
+/// because the twin evaluates it in every Newton step of every simulated sample and a
+/// general `powf` was 40 % of a diagnosis's time (the two agree within an ulp).
+fn hertz_y_and_slope(h: f64) -> (f64, f64) {
+    let root = h.sqrt();
+    (h * root, 1.5 * root)
 }
 
-/// `y^{2/3}` as `∛(y²)`, the inverse of [`three_halves`] without a general `powf`.
+/// `y^{2/3}` as `∛(y²)`, the inverse of `h^{3/2}` without a general `powf`.
 fn two_thirds(y: f64) -> f64 {
     (y * y).cbrt()
 }
@@ -418,9 +417,10 @@ impl BluntedCone {
 
 /// The root of a contact equation `g(d) = 0` in the lever's deflection `d`: `g` decreasing
 /// on the bracket `[lo, hi]` (`g(lo) ≥ 0 ≥ g(hi)`), `g_and_slope(d)` giving `g(d)` and its
-/// derivative (or a close enough one) together, since both need the same root of the
-/// indentation (and a blunted cone the same contact-radius solve). Newton steps from `x0`, the previous sample's root, which a slowly moving base
-/// leaves two or three steps away; a step that leaves the shrinking bracket is replaced by
+/// derivative (or a close enough one) together, since both need the same shape function
+/// (one square root for a sphere, one contact-radius solve for a blunted cone). Newton
+/// steps from `x0`, the previous sample's root, which a slowly moving base leaves two or
+/// three steps away; a step that leaves the shrinking bracket is replaced by
 /// bisection, so it converges whatever the slope. Stops when a step or the bracket falls
 /// below `tol`, or after `max_iter` steps. The twin and the fit's deflection refinement both
 /// solve their contacts with it.
