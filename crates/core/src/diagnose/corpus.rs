@@ -61,10 +61,11 @@
 //! - `Null`: no effect: white noise only, or white plus 1/f detector noise of the same size.
 //!
 //! [`concealed_corpus`] spreads the masked kinds and the pairs over the seeds; three seeds give
-//! 59 cases (36 near-floor, 10 masked, 7 pairs, 6 nulls), generated in about 3 minutes in
-//! release on this machine (a visible size is three nominal refits of tens of simulations
-//! each, and an effect takes two to four sizes), 93 s on its two cores through
-//! [`concealed_corpus_with`] and the daemon's threads. Each [`CorpusCase`] also carries the `baseline` twin (the case
+//! 59 cases (36 near-floor, 10 masked, 7 pairs, 6 nulls), generated in about 2 minutes in
+//! release on one core of this machine (a visible size is three nominal refits of tens of
+//! simulations each, and an effect takes two to four sizes), 56 s on its two cores through
+//! [`concealed_corpus_with`] and the daemon's threads (`viscoprobe diagnose-bench` prints
+//! when it starts diagnosing). Each [`CorpusCase`] also carries the `baseline` twin (the case
 //! without its effects, look-alikes and noise kept), so a test or a bench can reproduce the
 //! difference. Everything is pure computation, seeded by the caller: the same seeds give
 //! bit-identical recordings.
