@@ -64,8 +64,8 @@
 //! 59 cases (36 near-floor, 10 masked, 7 pairs, 6 nulls), generated in about 2 minutes in
 //! release on one core of this machine (a visible size is three nominal refits of tens of
 //! simulations each, and an effect takes two to four sizes), 56 s on its two cores through
-//! [`concealed_corpus_with`] and the daemon's threads (`viscoprobe diagnose-bench` prints
-//! when it starts diagnosing). Each [`CorpusCase`] also carries the `baseline` twin (the case
+//! [`concealed_corpus_with`] and the daemon's threads (`time viscoprobe diagnose-bench
+//! --filter none` generates it and stops: no case matches). Each [`CorpusCase`] also carries the `baseline` twin (the case
 //! without its effects, look-alikes and noise kept), so a test or a bench can reproduce the
 //! difference. Everything is pure computation, seeded by the caller: the same seeds give
 //! bit-identical recordings.
