@@ -25,7 +25,7 @@
 //! Both estimators see the detector noise in their input as well as their output (force and
 //! indentation come from the same lever). The frequency-domain ML models that (input noise
 //! and its correlation with the output's, measured between periods); the time-domain output
-//! error does not, and biases the fastest terms. So a last stage, [`refine`], fits the
+//! error does not, and biases the fastest terms. So a last stage, [`fn@refine`], fits the
 //! measured deflection with the noise-free drive as input and the contact position as a
 //! parameter: for every order of a non-periodic drive (its BIC is then the deflection's), and
 //! for the chosen order of a periodic drive whose indentation comes from the drive (where the
@@ -476,12 +476,12 @@ pub struct RecordingFit {
     pub band_hz: [f64; 2],
     /// Plain-language remarks about the analysis (not the estimator's own warnings).
     pub notes: Vec<String>,
-    /// The final refinement on the deflection with the drive as input ([`refine`]), when it
+    /// The final refinement on the deflection with the drive as input ([`fn@refine`]), when it
     /// made the estimate.
     pub refinement: Option<Refinement>,
 }
 
-/// What the deflection refinement ([`refine`]) found besides the Prony parameters.
+/// What the deflection refinement ([`fn@refine`]) found besides the Prony parameters.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Refinement {
     /// Fitted contact position, nm of (calibrated) drive, and its standard error.

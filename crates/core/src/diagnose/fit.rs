@@ -226,7 +226,7 @@ fn chi2_scale(problem: &Problem, chi2: f64, n_free: usize) -> f64 {
 /// by whole samples, as an adhesive neck's length sets which sample it snaps at.
 ///
 /// Its χ²_train is scanned, everything else held, outward in ever larger steps until it rises
-/// by 3.84 × the fit's [`chi2_scale`]: the 95 % interval conditional on the others, its wider
+/// by 3.84 × the fit's `chi2_scale`: the 95 % interval conditional on the others, its wider
 /// half / 1.96 here. It stays NaN when even a step of ±2 (a factor e² on a log parameter)
 /// does not raise it that much. A scan costs up to 30 simulations, so it is run only on the
 /// fits a report shows, not on every fit a diagnosis tries.

@@ -74,7 +74,7 @@ pub fn grid_starts(
 }
 
 /// The log-parameter starts of a fit: the grid's, plus a prior (or ARX) model when it has the
-/// right order and is physical. An empty set is [`EstimateError::NoStart`].
+/// right order and is physical. An empty set is [`super::EstimateError::NoStart`].
 pub fn with_prior(
     grid: Vec<Start>,
     prior: Option<&crate::prony::PronySeries>,

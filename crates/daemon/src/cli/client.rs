@@ -13,7 +13,7 @@ use std::time::Duration;
 
 #[derive(Debug, Args)]
 pub struct SocketArgs {
-    /// Control socket (default: $VISCOPROBE_SOCKET, [service] socket_path of
+    /// Control socket (default: $VISCOPROBE_SOCKET, `[service] socket_path` of
     /// /etc/viscoprobe/viscoprobe.toml or config/viscoprobe.toml, /run/viscoprobe/control.sock).
     #[arg(long)]
     pub socket: Option<PathBuf>,

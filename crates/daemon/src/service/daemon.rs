@@ -22,14 +22,14 @@ use viscoprobe_hal::{Instrument, StreamConfig};
 #[derive(Debug, Parser)]
 #[command(name = "viscoprobed", version, about)]
 pub struct Args {
-    /// Configuration: [instrument], [twin], [run], [safety] as for `viscoprobe run`, plus
-    /// [service].
+    /// Configuration: the `[instrument]`, `[twin]`, `[run]` and `[safety]` tables as for
+    /// `viscoprobe run`, plus `[service]`.
     #[arg(long, default_value = super::config::INSTALLED_CONFIG)]
     pub config: PathBuf,
-    /// Override [service] socket_path.
+    /// Override `[service] socket_path`.
     #[arg(long)]
     pub socket: Option<PathBuf>,
-    /// Override [service] state_dir.
+    /// Override `[service] state_dir`.
     #[arg(long)]
     pub state_dir: Option<PathBuf>,
     /// Validate the configuration and health-check the backend, then exit.

@@ -2,7 +2,7 @@
 //!
 //! Runs are submitted into a queue (each gets its directory, `plan.toml` and a `queued`
 //! `report.json` at once, so a restart finds it again). The worker takes them in order and
-//! runs [`run_measurement`] on a blocking thread; its events update the shared state the
+//! runs [`crate::measure::run_measurement`] on a blocking thread; its events update the shared state the
 //! `status` request reads.
 //!
 //! Pause: `run_measurement` has no pause of its own, but it reports every event through a
