@@ -1,11 +1,13 @@
 //! `viscoprobe fit`, `import` and `diagnose` on recordings, as a user runs them: the
-//! documented `--json` keys (docs/fit-json.md) on a twin-simulated creep recording, the plots,
+//! documented `--json` keys (docs/fit-json.md) on a twin-simulated creep recording and those
+//! of docs/diagnose-json.md on the real gel, the plots,
 //! refusals of malformed recordings and JPK files (a message naming the file and the fault,
 //! never a panic), and the shared real JPK file.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use viscoprobe_core::analysis::simulate_foh;
+use viscoprobe_core::diagnose::CATALOG;
 use viscoprobe_core::prony::{PronySeries, PronyTerm};
 use viscoprobe_core::recording::Recording;
 use viscoprobe_daemon::cli::simulate::write_atomic;
@@ -459,4 +461,84 @@ fn real_jpk_imports_fits_and_plots() {
         (e2 - e_inf).abs() < 1e-6 * e_inf,
         "imported {e2} vs direct {e_inf}"
     );
+}
+
+/// `viscoprobe diagnose --json` on the real gel, read as a user's script reads it: the keys
+/// of docs/diagnose-json.md that the issue fixes (`verdict`, `effects[]` ranked strongest
+/// first with `id`, `significant`, `evidence`, `params`; `fit.before_nrmse`/`after_nrmse`;
+/// `locations`), the fit against the floor, and the plots.
+#[test]
+fn real_jpk_diagnose_json_keeps_the_documented_keys() {
+    let jpk = jpk_fixture();
+    let dir = scratch("jpk-diagnose");
+    let o = viscoprobe(&[
+        "diagnose",
+        jpk.to_str().unwrap(),
+        "--json",
+        "--plot",
+        dir.to_str().unwrap(),
+    ]);
+    let v = json_of(&o);
+    assert_eq!(v["verdict"], "mismatch");
+    let effects = v["effects"].as_array().expect("effects[]");
+    let ids: Vec<&str> = effects.iter().map(|e| e["id"].as_str().unwrap()).collect();
+    let mut unique = ids.clone();
+    unique.sort();
+    unique.dedup();
+    assert_eq!(unique.len(), ids.len(), "an id twice: {ids:?}");
+    assert!(ids.iter().all(|id| CATALOG.contains(id)), "{ids:?}");
+    // The file's base position is the stage's height sensor: no piezo candidates.
+    assert_eq!(ids.len(), CATALOG.len() - 2, "{ids:?}");
+    assert!(!ids.contains(&"piezo_creep") && !ids.contains(&"piezo_hysteresis"));
+    // Significant effects first, adhesion the strongest.
+    let significant: Vec<bool> = effects
+        .iter()
+        .map(|e| e["significant"].as_bool().unwrap())
+        .collect();
+    assert!(
+        significant.windows(2).all(|w| w[0] || !w[1]),
+        "{significant:?}"
+    );
+    assert_eq!(ids[0], "adhesion");
+    assert!(significant[0]);
+    for e in effects {
+        finite(e, "evidence");
+        for (name, p) in e["params"].as_object().expect("params") {
+            finite(p, "value");
+            assert!(p["unit"].is_string(), "{name}: {p}");
+            let ci = p["ci95"].as_array().expect("ci95");
+            assert!(
+                ci.len() == 2 && ci.iter().all(|b| b.is_null() || b.is_f64()),
+                "{name}: {p}"
+            );
+        }
+    }
+    let pull = finite(&effects[0], "params.pull_off_force_nn.value");
+    let ci = finite_array(&effects[0], "params.pull_off_force_nn.ci95");
+    assert!((1.0..10.0).contains(&pull), "pull-off {pull} nN");
+    assert!(ci[0] < pull && pull < ci[1], "{ci:?}");
+    // The fit: better after, and the removed error is the quadrature difference.
+    let (before, after) = (
+        finite(&v, "fit.before_nrmse"),
+        finite(&v, "fit.after_nrmse"),
+    );
+    assert!(after < 0.7 * before, "NRMSE {before} → {after}");
+    let removed = finite(&v, "fit.removed_nrmse");
+    assert!((removed.powi(2) - (before.powi(2) - after.powi(2))).abs() < 1e-12);
+    let floor = finite(&v, "fit.noise_floor_nrmse");
+    assert!(floor > 0.0 && floor < after, "floor {floor}");
+    // The gel's residual after adhesion and drag is still far above the floor, and says so.
+    assert_eq!(v["fit"]["after_at_floor"], false);
+    let locations = v["locations"].as_array().expect("locations[]");
+    let pull_off = locations
+        .iter()
+        .find(|l| l["name"] == "pull_off")
+        .expect("the pull-off is located");
+    assert_eq!(pull_off["significant"], true);
+    let from = finite(pull_off, "from");
+    assert!((6.3..6.8).contains(&from), "pull-off from {from} s");
+    for name in ["fit.svg", "residual-time.svg", "residual-spectrum.svg"] {
+        let s = std::fs::read_to_string(dir.join(name)).unwrap_or_default();
+        assert!(s.contains("<svg"), "{name} is not a plot");
+    }
 }

@@ -19,6 +19,9 @@ pub struct CaseOutcome {
     /// Held-out whitened χ² per sample before and after (1 = the noise floor).
     pub before_chi2: f64,
     pub after_chi2: f64,
+    /// What the chosen model leaves on the held-out samples is at the noise floor
+    /// ([`super::AgainstFloor`]).
+    pub after_at_floor: bool,
     pub seconds: f64,
 }
 
@@ -40,6 +43,7 @@ impl CaseOutcome {
             after_nrmse: d.after.held_out_nrmse,
             before_chi2: d.before.held_out_chi2_per_sample,
             after_chi2: d.after.held_out_chi2_per_sample,
+            after_at_floor: d.against_floor.after_at_floor,
             seconds,
         }
     }
@@ -82,6 +86,8 @@ pub struct Score {
     pub improved_30: usize,
     /// Effect cases whose held-out model error (above the floor) shrank by at least 30 %.
     pub model_error_improved_30: usize,
+    /// Effect cases where what the chosen model leaves is at the noise floor.
+    pub at_floor_after: usize,
     /// Rows: truth (first true effect, or `null`); columns: top-ranked (or `none`).
     pub confusion: Vec<(String, String, usize)>,
 }
@@ -115,6 +121,7 @@ pub fn score(outcomes: &[CaseOutcome]) -> Score {
             .iter()
             .filter(|o| o.model_error_improvement() >= 0.3)
             .count(),
+        at_floor_after: effects.iter().filter(|o| o.after_at_floor).count(),
         confusion,
     }
 }

@@ -95,6 +95,11 @@ pub fn diagnosis_json(file: &str, d: &Diagnosis, seconds: f64) -> Value {
         "fit": {
             "before_nrmse": d.before.held_out_nrmse,
             "after_nrmse": d.after.held_out_nrmse,
+            "noise_floor_nrmse": d.against_floor.floor_nrmse,
+            "removed_nrmse": d.against_floor.removed_nrmse,
+            "held_out_spread_v": d.against_floor.held_out_spread_v,
+            "after_at_floor": d.against_floor.after_at_floor,
+            "at_floor_chi2_limit": d.against_floor.at_floor_limit,
             "before": summary_json(&d.before),
             "after": summary_json(&d.after),
         },
@@ -210,6 +215,19 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
         }
         viscoprobe_core::diagnose::Verdict::None => {
             println!("verdict: NONE — nothing significant is missing: the residual sits at the noise floor");
+            if let Some(top) = d.effects.first() {
+                if top.refitted {
+                    println!(
+                        "  the strongest candidate, {}, refitted: held-out χ² drop {:.1}, train drop {:.1} against the {:.1} needed",
+                        top.id, top.evidence, top.train_drop, top.bic_penalty
+                    );
+                } else {
+                    println!(
+                        "  the strongest candidate, {}, screened only: its train χ² drop {:.1} is below the {:.1} a significant effect needs",
+                        top.id, top.train_drop, top.bic_penalty
+                    );
+                }
+            }
         }
         viscoprobe_core::diagnose::Verdict::Unexplained => {
             println!("verdict: UNEXPLAINED — a structured residual remains that no catalog effect explains (see where below)");
@@ -245,6 +263,33 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
         d.before.held_out_chi2_per_sample,
         d.after.held_out_chi2_per_sample
     );
+    let f = &d.against_floor;
+    let left = if f.after_at_floor {
+        format!(
+            "what is left is at the floor (χ²/sample {:.3} ≤ {:.3}, the floor's own scatter)",
+            d.after.held_out_chi2_per_sample, f.at_floor_limit
+        )
+    } else {
+        format!(
+            "what is left is above the floor (χ²/sample {:.3} > {:.3}, the floor's own scatter)",
+            d.after.held_out_chi2_per_sample, f.at_floor_limit
+        )
+    };
+    if d.after.model == d.before.model {
+        println!(
+            "  against the floor (NRMSE {:.5} for σ {:.3} mV alone): nothing added; {left}",
+            f.floor_nrmse,
+            d.noise.sigma_v * 1e3
+        );
+    } else {
+        println!(
+            "  against the floor (NRMSE {:.5} for σ {:.3} mV alone): the added physics removed a systematic error of NRMSE {:.5} ({:.3} mV rms); {left}",
+            f.floor_nrmse,
+            d.noise.sigma_v * 1e3,
+            f.removed_nrmse,
+            f.removed_nrmse * f.held_out_spread_v * 1e3
+        );
+    }
     let m = |s: &FitSummary| {
         format!(
             "E_inst {:.4} kPa, E_relaxed {:.4} kPa, τ = {}",
@@ -558,12 +603,13 @@ fn score_json(s: &Score, outcomes: &[CaseOutcome]) -> Value {
         "false_positive_rate": s.null_false_positives as f64 / s.null_cases.max(1) as f64,
         "improved_30_percent": s.improved_30,
         "model_error_improved_30_percent": s.model_error_improved_30,
+        "at_floor_after": s.at_floor_after,
         "confusion": s.confusion.iter().map(|(t, p, n)| json!({"truth": t, "top": p, "count": n})).collect::<Vec<_>>(),
         "cases": outcomes.iter().map(|o| json!({
             "name": o.name, "truth": o.truth, "top": o.top, "significant": o.significant,
             "verdict": o.verdict, "before_nrmse": o.before_nrmse, "after_nrmse": o.after_nrmse,
             "before_chi2_per_sample": o.before_chi2, "after_chi2_per_sample": o.after_chi2,
-            "seconds": o.seconds,
+            "after_at_floor": o.after_at_floor, "seconds": o.seconds,
         })).collect::<Vec<_>>(),
     })
 }
@@ -655,6 +701,10 @@ pub fn run_bench(args: BenchArgs) -> anyhow::Result<()> {
     println!(
         "held-out model error above the floor shrank by ≥ 30 %: {}/{} effect cases",
         s.model_error_improved_30, s.effect_cases
+    );
+    println!(
+        "what the chosen model leaves on the held-out samples is at the noise floor: {}/{} effect cases",
+        s.at_floor_after, s.effect_cases
     );
     let worst = outcomes.iter().map(|o| o.seconds).fold(0.0, f64::max);
     println!(
