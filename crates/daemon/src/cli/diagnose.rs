@@ -264,17 +264,15 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
         d.after.held_out_chi2_per_sample
     );
     let f = &d.against_floor;
-    let left = if f.after_at_floor {
-        format!(
-            "what is left is at the floor (χ²/sample {:.3} ≤ {:.3}, the floor's own scatter)",
-            d.after.held_out_chi2_per_sample, f.at_floor_limit
-        )
+    let (place, cmp) = if f.after_at_floor {
+        ("at", "≤")
     } else {
-        format!(
-            "what is left is above the floor (χ²/sample {:.3} > {:.3}, the floor's own scatter)",
-            d.after.held_out_chi2_per_sample, f.at_floor_limit
-        )
+        ("above", ">")
     };
+    let left = format!(
+        "what is left is {place} the floor (χ²/sample {:.3} {cmp} {:.3}, the most a model at the floor reaches by chance)",
+        d.after.held_out_chi2_per_sample, f.at_floor_limit
+    );
     if d.after.model == d.before.model {
         println!(
             "  against the floor (NRMSE {:.5} for σ {:.3} mV alone): nothing added; {left}",
