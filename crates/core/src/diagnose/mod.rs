@@ -782,10 +782,21 @@ pub fn diagnose_with(
                 .filter(|(b, _)| *b != a)
                 .filter(|(b, _)| wide || sig_singles.iter().any(|(s, _, _)| s == b))
                 .collect();
-            let pairs = fan::map(fan, others.len(), |j| {
-                let (b, fb) = others[j];
-                let spec = ModelSpec::pair_of(&fa.spec, &fb.spec);
-                let start = combine(&spec, &fa, fb);
+            // The first effect likewise, where the best one leaves structure: its best form
+            // may be bent to mimic the partner (an adhesive neck standing in for a blunt
+            // cone's contact), and only its plain form pairs with the partner's truth.
+            let mut firsts: Vec<&Fitted> = vec![&fa];
+            if wide {
+                firsts.extend(plain_forms.iter().filter(|(e, _)| *e == a).map(|(_, f)| f));
+            }
+            let jobs: Vec<(&Fitted, &(Effect, Fitted))> = firsts
+                .iter()
+                .flat_map(|f| others.iter().map(move |o| (*f, *o)))
+                .collect();
+            let pairs = fan::map(fan, jobs.len(), |j| {
+                let (first, (b, fb)) = jobs[j];
+                let spec = ModelSpec::pair_of(&first.spec, &fb.spec);
+                let start = combine(&spec, first, fb);
                 fit_model(&problem, &spec, &[start], refit_opts, fan).map(|fp| (*b, fp))
             });
             let mut best_pair: Option<(Effect, Fitted, Judgement)> = None;
