@@ -65,10 +65,10 @@
 //! release on one core of this machine (a visible size is three nominal refits of tens of
 //! simulations each, and an effect takes two to four sizes), 56 s on its two cores through
 //! [`concealed_corpus_with`] and the daemon's threads (`time viscoprobe diagnose-bench
-//! --filter none` generates it and stops: no case matches). Each [`CorpusCase`] also carries the `baseline` twin (the case
-//! without its effects, look-alikes and noise kept), so a test or a bench can reproduce the
-//! difference. Everything is pure computation, seeded by the caller: the same seeds give
-//! bit-identical recordings.
+//! --filter none` generates it and stops: no case matches). Each [`CorpusCase`] also carries
+//! the `baseline` twin (the case without its effects, look-alikes and noise kept), so a test
+//! or a bench can reproduce the difference. Everything is pure computation, seeded by the
+//! caller: the same seeds give bit-identical recordings.
 
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
@@ -1645,9 +1645,10 @@ fn build_all(
 /// of core's tests building that corpus a second time.
 ///
 /// Per case: the contact history of the protocol (free at rest, in contact through
-/// excitation and hold, free at the end); the sizing rule on the recorded multiples; the masked and pair rules; a null
-/// case carries no effect at all; the recording holds only instrument channels, validates,
-/// and writes and reads back bit for bit with its truth and segments. Over the corpus: every
+/// excitation and hold, free at the end); the sizing rule on the recorded multiples; the
+/// masked and pair rules; a null case carries no effect at all; the recording holds only
+/// instrument channels, validates, and writes and reads back bit for bit with its truth and
+/// segments. Over the corpus: every
 /// case has its own noise realisation. The cases are audited side by side through `fan`.
 pub fn audit(cases: &[CorpusCase], fan: &dyn Fan) -> Vec<String> {
     let (drive, segments) = protocol_drive(FS_HZ);

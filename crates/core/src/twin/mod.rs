@@ -574,10 +574,11 @@ impl Twin {
         let (alpha, beta) = self.material.affine();
         let gap_m = (base_nm - self.soft_surface_nm()) * 1e-9;
         let k_si = k; // N/m
-                      // The film's stiffening of the contact at indentation h (Dimitriadis et al. 2002, a
-                      // film bonded to a rigid substrate, ν ≈ 0.5), or `None` where there is no film: a
-                      // factor 1, applied as no division at all, which keeps two divisions off the
-                      // Newton step's critical path.
+
+        // The film's stiffening of the contact at indentation h (Dimitriadis et al. 2002, a
+        // film bonded to a rigid substrate, ν ≈ 0.5), or `None` where there is no film: a
+        // factor 1, applied as no division at all, which keeps two divisions off the Newton
+        // step's critical path.
         let film = |h_m: f64| -> Option<f64> {
             match (s.thickness_nm, self.cfg.tip) {
                 (Some(th), TipConfig::Sphere { radius_nm }) if h_m > 0.0 => {
