@@ -531,7 +531,7 @@ pub fn nominal_basis(base: &TwinConfig, drive_v: &[f64]) -> DMatrix<f64> {
 
 /// The same twin with its random noise switched off (every deterministic detector effect —
 /// drift, mains, cubic term, delay — kept).
-fn noise_free(twin: &TwinConfig) -> TwinConfig {
+pub(super) fn noise_free(twin: &TwinConfig) -> TwinConfig {
     let mut c = twin.clone();
     c.detector.white_noise_v = 0.0;
     c.detector.pink_noise_v = 0.0;
@@ -1745,8 +1745,12 @@ struct Findings<'a> {
 impl Findings<'_> {
     fn check(&mut self, ok: bool, what: String) {
         if !ok {
-            self.lines.push(format!("{}: {what}", self.case));
+            self.fail(what);
         }
+    }
+
+    fn fail(&mut self, what: String) {
+        self.lines.push(format!("{}: {what}", self.case));
     }
 }
 
@@ -1950,13 +1954,13 @@ fn audit_recording(c: &CorpusCase, f: &mut Findings) {
         "the declared tip is not a sphere".into(),
     );
     if let Err(e) = r.validate() {
-        f.check(false, format!("does not validate: {e}"));
+        f.fail(format!("does not validate: {e}"));
     }
     let (mut csv, mut sidecar) = (Vec::new(), Vec::new());
     match r.write(&mut csv, &mut sidecar) {
-        Err(e) => f.check(false, format!("cannot be written: {e}")),
+        Err(e) => f.fail(format!("cannot be written: {e}")),
         Ok(()) => match Recording::read(&csv[..], &sidecar[..]) {
-            Err(e) => f.check(false, format!("cannot be read back: {e}")),
+            Err(e) => f.fail(format!("cannot be read back: {e}")),
             Ok(back) => {
                 f.check(
                     back.warnings.is_empty(),

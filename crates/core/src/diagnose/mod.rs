@@ -205,31 +205,6 @@ pub struct AgainstFloor {
     pub after_at_floor: bool,
 }
 
-impl AgainstFloor {
-    /// From the two held-out NRMSEs and the chosen model's χ²/sample; `held_out_samples`
-    /// and `floor_samples` (where σ was measured) set how far a χ² at the floor scatters.
-    pub fn new(
-        held_out_spread_v: f64,
-        sigma_v: f64,
-        nrmse: [f64; 2],
-        after_chi2_per_sample: f64,
-        held_out_samples: usize,
-        floor_samples: usize,
-    ) -> Self {
-        let [before, after] = nrmse;
-        let scatter =
-            (2.0 / held_out_samples.max(1) as f64 + 2.0 / floor_samples.max(1) as f64).sqrt();
-        let at_floor_limit = 1.0 + 3.0 * scatter;
-        Self {
-            held_out_spread_v,
-            floor_nrmse: sigma_v / held_out_spread_v.max(1e-300),
-            removed_nrmse: (before * before - after * after).max(0.0).sqrt(),
-            at_floor_limit,
-            after_at_floor: after_chi2_per_sample <= at_floor_limit,
-        }
-    }
-}
-
 /// The result of [`diagnose`].
 #[derive(Debug, Clone)]
 pub struct Diagnosis {
@@ -877,14 +852,7 @@ pub fn diagnose_with(
         Verdict::None
     };
     let (before, after) = (summary(&problem, &nom), summary(&problem, &final_fit));
-    let against_floor = AgainstFloor::new(
-        held_spread_v(&problem),
-        noise.sigma_v,
-        [before.held_out_nrmse, after.held_out_nrmse],
-        after.held_out_chi2_per_sample,
-        problem.held.len(),
-        noise.samples,
-    );
+    let against_floor = against_floor(&problem, &noise, &before, &after);
     Ok(Diagnosis {
         verdict,
         effects: reports,
@@ -1013,6 +981,29 @@ fn held_nrmse(problem: &Problem, f: &Fitted) -> f64 {
         .sum::<f64>()
         / n;
     mse.sqrt() / held_spread_v(problem).max(1e-300)
+}
+
+/// The nominal and the chosen model's held-out fits against the floor `noise` measured.
+fn against_floor(
+    problem: &Problem,
+    noise: &NoiseModel,
+    before: &FitSummary,
+    after: &FitSummary,
+) -> AgainstFloor {
+    let spread = held_spread_v(problem);
+    // The scatter of a χ²/sample at the floor: over the held-out samples, and of the
+    // floor's own σ² measured on `noise.samples`.
+    let scatter =
+        (2.0 / problem.held.len().max(1) as f64 + 2.0 / noise.samples.max(1) as f64).sqrt();
+    let at_floor_limit = 1.0 + 3.0 * scatter;
+    let (b, a) = (before.held_out_nrmse, after.held_out_nrmse);
+    AgainstFloor {
+        held_out_spread_v: spread,
+        floor_nrmse: noise.sigma_v / spread.max(1e-300),
+        removed_nrmse: (b * b - a * a).max(0.0).sqrt(),
+        at_floor_limit,
+        after_at_floor: after.held_out_chi2_per_sample <= at_floor_limit,
+    }
 }
 
 fn summary(problem: &Problem, f: &Fitted) -> FitSummary {
@@ -1363,7 +1354,7 @@ impl StartContext {
 
 #[cfg(test)]
 mod tests {
-    use super::corpus::{nominal_twin, protocol_drive, simulate};
+    use super::corpus::{noise_free, nominal_twin, protocol_drive, simulate};
     use super::{diagnose, split_train_held, BasePosition, DiagnoseOptions, Diagnosis};
     use crate::recording::Drive;
     use crate::twin::detector::Mains;
@@ -1517,10 +1508,7 @@ mod tests {
         let rec = simulate(&twin, &drive_v, fs, None);
         let d = diagnose(&rec, &DiagnoseOptions::default()).unwrap();
         assert_eq!(d.effects[0].id, "thermal_drift", "{:?}", d.effects[0]);
-        let mut quiet = twin.clone();
-        quiet.detector.white_noise_v = 0.0;
-        quiet.detector.pink_noise_v = 0.0;
-        let clean = simulate(&quiet, &drive_v, fs, None).deflection_v;
+        let clean = simulate(&noise_free(&twin), &drive_v, fs, None).deflection_v;
         let rms = |a: &[f64], b: &[f64]| {
             (a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum::<f64>() / a.len() as f64).sqrt()
         };

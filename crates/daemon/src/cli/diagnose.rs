@@ -273,21 +273,20 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
         "what is left is {place} the floor (χ²/sample {:.3} {cmp} {:.3}, the most a model at the floor reaches by chance)",
         d.after.held_out_chi2_per_sample, f.at_floor_limit
     );
-    if d.after.model == d.before.model {
-        println!(
-            "  against the floor (NRMSE {:.5} for σ {:.3} mV alone): nothing added; {left}",
-            f.floor_nrmse,
-            d.noise.sigma_v * 1e3
-        );
+    let done = if d.after.model == d.before.model {
+        "nothing added".to_string()
     } else {
-        println!(
-            "  against the floor (NRMSE {:.5} for σ {:.3} mV alone): the added physics removed a systematic error of NRMSE {:.5} ({:.3} mV rms); {left}",
-            f.floor_nrmse,
-            d.noise.sigma_v * 1e3,
+        format!(
+            "the added physics removed a systematic error of NRMSE {:.5} ({:.3} mV rms)",
             f.removed_nrmse,
             f.removed_nrmse * f.held_out_spread_v * 1e3
-        );
-    }
+        )
+    };
+    println!(
+        "  against the floor (NRMSE {:.5} for σ {:.3} mV alone): {done}; {left}",
+        f.floor_nrmse,
+        d.noise.sigma_v * 1e3
+    );
     let m = |s: &FitSummary| {
         format!(
             "E_inst {:.4} kPa, E_relaxed {:.4} kPa, τ = {}",
