@@ -585,8 +585,6 @@ pub fn diagnose_with(
     let distorted = nom.eval.chi2_train / n_tr > 1.2;
     let n_ho = problem.held.len() as f64;
     let mut singles: Vec<(Effect, Fitted)> = vec![];
-    // Only candidates whose screening already beats the information-criterion penalty are
-    // refitted: a refit cannot make a candidate that explains nothing significant.
     // The train χ² drop a single effect must beat: its BIC penalty and the margin.
     let penalty_of = |e: Effect| {
         let k = (model::n_params(&problem, &ModelSpec::with(&[e]))
@@ -594,6 +592,8 @@ pub fn diagnose_with(
         .max(1) as f64;
         k * n_tr.ln() + th.train_margin
     };
+    // Only candidates whose screening already beats it are refitted: a refit cannot make a
+    // candidate that explains nothing significant.
     let n_refit = screened
         .iter()
         .take(opts.full_refits)
