@@ -270,12 +270,17 @@ const GROSS_MISFIT: f64 = 100.0;
 pub enum BasePosition {
     /// The drive voltage through the actuator model (gain, and the piezo effects when added).
     Drive,
-    /// `drive_nm`: the commanded displacement of a calibrated, closed-loop Z stage (the
-    /// recording format's definition). Its loop removes the piezo's creep and hysteresis, so
-    /// they are not candidates; its finite bandwidth (a resonance, a delay) remains.
-    ClosedLoopDrive,
-    /// The recording's `measured_height_nm`: the stage's own sensor. The piezo effects act
-    /// between the drive and that position and are not diagnosed from the deflection.
+    /// `drive_nm`: the commanded actuator displacement. The recording format has it from a
+    /// calibrated, closed-loop Z stage, whose loop would remove the piezo's creep and
+    /// hysteresis; but instruments also export as "height" the drive voltage times a
+    /// calibrated sensitivity with the loop off (JPK's `height` channel is linear in the
+    /// voltage), and then the piezo's creep and hysteresis sit between this column and the
+    /// real position. The piezo effects therefore stay candidates, each needing the same
+    /// evidence as any other; a closed-loop stage simply gives them none.
+    CommandedDisplacement,
+    /// The recording's `measured_height_nm`, the stage's own sensor, beside a `drive_nm`
+    /// (beside a drive in volts the drive stays the base). The piezo effects act between the
+    /// drive and that position and are not diagnosed from the deflection.
     HeightSensor,
 }
 
@@ -283,7 +288,7 @@ impl BasePosition {
     pub fn id(self) -> &'static str {
         match self {
             BasePosition::Drive => "drive",
-            BasePosition::ClosedLoopDrive => "closed_loop_drive",
+            BasePosition::CommandedDisplacement => "drive_nm",
             BasePosition::HeightSensor => "measured_height",
         }
     }
@@ -291,7 +296,7 @@ impl BasePosition {
     /// Whether the piezo's own effects (creep, hysteresis) can show between this base
     /// position and the deflection.
     pub fn shows_piezo_effects(self) -> bool {
-        self == BasePosition::Drive
+        self != BasePosition::HeightSensor
     }
 }
 
@@ -407,15 +412,20 @@ pub fn diagnose_with(
     };
     let commanded = match rec.drive {
         Drive::Volts(_) => BasePosition::Drive,
-        Drive::Nanometres(_) => BasePosition::ClosedLoopDrive,
+        Drive::Nanometres(_) => BasePosition::CommandedDisplacement,
     };
-    // The actuator's own position sensor, when the recording has one, is where the base
-    // really was: a commanded height and the stage's position can part by micrometres (the
-    // shared JPK file's commanded `height` runs backwards during its force-feedback hold).
-    // Deflection is then modelled against the sensor, so the piezo effects, which act
-    // between command and position, are out of this diagnosis's sight (see `base_position`).
-    let (drive, gain0, base_position) = match &rec.measured_height_nm {
-        Some(h) if h.iter().all(|v| v.is_finite()) => (h.clone(), 1.0, BasePosition::HeightSensor),
+    // Behind a commanded displacement, the actuator's own position sensor, when the
+    // recording has one, is where the base really was: a commanded height and the stage's
+    // position can part by micrometres (the shared JPK file's commanded `height` runs
+    // backwards during its force-feedback hold). Deflection is then modelled against the
+    // sensor, so the piezo effects, which act between command and position, are out of this
+    // diagnosis's sight (see `base_position`). A drive in volts is what the piezo really
+    // received, so it stays the base beside a sensor: the piezo's creep and hysteresis then
+    // stay in sight, and the sensor's own noise stays out of the model's input.
+    let (drive, gain0, base_position) = match (&rec.drive, &rec.measured_height_nm) {
+        (Drive::Nanometres(_), Some(h)) if h.iter().all(|v| v.is_finite()) => {
+            (h.clone(), 1.0, BasePosition::HeightSensor)
+        }
         _ => (drive, gain0, commanded),
     };
     let y = rec.deflection_v.clone();
@@ -1354,9 +1364,10 @@ impl StartContext {
 
 #[cfg(test)]
 mod tests {
-    use super::corpus::{noise_free, nominal_twin, protocol_drive, simulate};
-    use super::{diagnose, split_train_held, BasePosition, DiagnoseOptions, Diagnosis};
+    use super::corpus::{noise_free, nominal_twin, protocol_drive, simulate, simulate_with_truth};
+    use super::{diagnose, split_train_held, BasePosition, DiagnoseOptions, Diagnosis, Verdict};
     use crate::recording::Drive;
+    use crate::twin::actuator::BoucWen;
     use crate::twin::detector::Mains;
     use crate::twin::TwinConfig;
 
@@ -1380,36 +1391,42 @@ mod tests {
         })
     }
 
-    /// `drive_nm` is a closed-loop stage's commanded position (the recording format): its
-    /// loop removes piezo creep and hysteresis, so neither is a candidate there, while the
-    /// same record with its drive in volts screens both.
+    /// `drive_nm` may be a voltage times a calibrated sensitivity rather than a closed-loop
+    /// stage's position: a hysteretic piezo recorded with its drive in nm is still named as
+    /// such, as it is with its drive in volts — there beside a height sensor that read the
+    /// true position, which a drive in volts does not hand the base to.
     #[test]
-    fn a_closed_loop_drive_rules_out_the_piezo_effects() {
-        let twin = nominal_twin(11);
+    fn a_commanded_displacement_still_shows_piezo_hysteresis() {
+        let mut twin = nominal_twin(11);
+        twin.actuator.hysteresis = Some(BoucWen {
+            alpha: 0.08,
+            beta: 0.5,
+            gamma: 0.2,
+        });
         let fs = 5000.0;
         let (drive_v, _) = protocol_drive(fs);
-        let volts = simulate(&twin, &drive_v, fs, None);
+        let mut volts = simulate(&twin, &drive_v, fs, None);
         let mut nm = volts.clone();
         let gain = twin.actuator.gain_nm_per_v;
         nm.drive = Drive::Nanometres(drive_v.iter().map(|v| v * gain).collect());
-        let piezo = |d: &super::Diagnosis| {
-            d.effects
-                .iter()
-                .filter(|e| e.id == "piezo_creep" || e.id == "piezo_hysteresis")
-                .count()
-        };
+        let (_, truth) = simulate_with_truth(&twin, &drive_v, fs);
+        volts.measured_height_nm = Some(truth.iter().map(|s| s.base_nm).collect());
         let opts = DiagnoseOptions::default();
         let dv = diagnose(&volts, &opts).unwrap();
         let dn = diagnose(&nm, &opts).unwrap();
         assert_eq!(dv.base_position, BasePosition::Drive);
-        assert_eq!(
-            piezo(&dv),
-            2,
-            "both piezo effects screened on a voltage drive"
-        );
-        assert_eq!(dn.base_position, BasePosition::ClosedLoopDrive);
-        assert_eq!(piezo(&dn), 0, "no piezo effect on a closed-loop drive");
-        assert_eq!(dn.effects.len(), dv.effects.len() - 2);
+        assert_eq!(dn.base_position, BasePosition::CommandedDisplacement);
+        for d in [&dv, &dn] {
+            assert_eq!(d.verdict, Verdict::Mismatch);
+            assert_eq!(d.effects[0].id, "piezo_hysteresis");
+            assert!(d.effects[0].significant);
+            assert!(
+                d.after.held_out_nrmse < 0.7 * d.before.held_out_nrmse,
+                "held-out NRMSE {} → {}",
+                d.before.held_out_nrmse,
+                d.after.held_out_nrmse
+            );
+        }
     }
 
     /// Mains pick-up with a third harmonic: named, fitted in its harmonics form, each

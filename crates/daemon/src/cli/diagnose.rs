@@ -193,8 +193,8 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
         "base position: {}; residuals weighted {}",
         match d.base_position {
             BasePosition::Drive => "the drive voltage through the actuator model",
-            BasePosition::ClosedLoopDrive =>
-                "the commanded displacement of a closed-loop Z stage (drive_nm); piezo creep and hysteresis, which its loop removes, are not candidates",
+            BasePosition::CommandedDisplacement =>
+                "the commanded displacement (drive_nm); piezo creep and hysteresis stay candidates, as a stage that is not closed-loop still has them",
             BasePosition::HeightSensor =>
                 "the stage's height sensor (measured_height_nm); piezo effects, between drive and sensor, are not diagnosed",
         },
