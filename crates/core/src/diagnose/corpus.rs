@@ -1648,8 +1648,8 @@ fn build_all(
 /// excitation and hold, free at the end); the sizing rule on the recorded multiples; the
 /// masked and pair rules; a null case carries no effect at all; the recording holds only
 /// instrument channels, validates, and writes and reads back bit for bit with its truth and
-/// segments. Over the corpus: every
-/// case has its own noise realisation. The cases are audited side by side through `fan`.
+/// segments. Over the corpus: every case has its own noise realisation. The cases are audited
+/// side by side through `fan`.
 pub fn audit(cases: &[CorpusCase], fan: &dyn Fan) -> Vec<String> {
     let (drive, segments) = protocol_drive(FS_HZ);
     let mut findings: Vec<String> = fan::map(fan, cases.len(), |i| {

@@ -399,34 +399,24 @@ pub fn diagnose_with(
         return Err(DiagnoseError::TooShort(n));
     }
     let fs = rec.sample_rate_hz;
-    let (drive, gain0) = match &rec.drive {
-        Drive::Volts(v) => (
-            v.clone(),
-            rec.meta
-                .piezo
-                .as_ref()
-                .ok_or(DiagnoseError::NoGain)?
-                .gain_nm_per_v,
-        ),
-        Drive::Nanometres(v) => (v.clone(), 1.0),
-    };
-    let commanded = match rec.drive {
-        Drive::Volts(_) => BasePosition::Drive,
-        Drive::Nanometres(_) => BasePosition::CommandedDisplacement,
-    };
-    // Behind a commanded displacement, the actuator's own position sensor, when the
-    // recording has one, is where the base really was: a commanded height and the stage's
-    // position can part by micrometres (the shared JPK file's commanded `height` runs
-    // backwards during its force-feedback hold). Deflection is then modelled against the
-    // sensor, so the piezo effects, which act between command and position, are out of this
-    // diagnosis's sight (see `base_position`). A drive in volts is what the piezo really
-    // received, so it stays the base beside a sensor: the piezo's creep and hysteresis then
-    // stay in sight, and the sensor's own noise stays out of the model's input.
+    // Where the model's base position comes from, in one place. Behind a commanded
+    // displacement, the actuator's own position sensor, when the recording has one, is where
+    // the base really was: a commanded height and the stage's position can part by
+    // micrometres (the shared JPK file's commanded `height` runs backwards during its
+    // force-feedback hold). Deflection is then modelled against the sensor, so the piezo
+    // effects, which act between command and position, are out of this diagnosis's sight
+    // (see `base_position`). A drive in volts is what the piezo really received, so it stays
+    // the base beside a sensor: the piezo's creep and hysteresis then stay in sight, and the
+    // sensor's own noise stays out of the model's input.
     let (drive, gain0, base_position) = match (&rec.drive, &rec.measured_height_nm) {
         (Drive::Nanometres(_), Some(h)) if h.iter().all(|v| v.is_finite()) => {
             (h.clone(), 1.0, BasePosition::HeightSensor)
         }
-        _ => (drive, gain0, commanded),
+        (Drive::Nanometres(v), _) => (v.clone(), 1.0, BasePosition::CommandedDisplacement),
+        (Drive::Volts(v), _) => {
+            let piezo = rec.meta.piezo.as_ref().ok_or(DiagnoseError::NoGain)?;
+            (v.clone(), piezo.gain_nm_per_v, BasePosition::Drive)
+        }
     };
     let y = rec.deflection_v.clone();
     let (contact0, base, sigma_head) = find_contact(&y)?;
