@@ -25,6 +25,11 @@ top_ok = eff = fp = nul = nr30 = floor = 0
 for name in sorted(truth):
     t = truth[name]; d, dt, err = res[name]
     if d is None:
+        # A refused recording counts against the tool: a miss, or on a null case a failure.
+        if t['effects']:
+            eff += 1
+        else:
+            nul += 1; fp += 1
         print(f"{name} ERROR {err}"); continue
     sig = [e['id'] for e in d['effects'] if e['significant']]
     top = sig[0] if sig else '-'
