@@ -6,7 +6,7 @@
 //! Jacobian costs one twin simulation per parameter.
 
 use super::fan::{self, Fan};
-use super::model::{Evaluation, ModelSpec, Problem};
+use super::model::{Evaluation, ModelSpec, Problem, ACTUATOR_LAG};
 use crate::estimate::lm::{solve_lazy, Damping, LmOptions};
 use nalgebra::{DMatrix, DVector};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -179,7 +179,9 @@ pub fn fit_params(
     })
 }
 
-/// Fits every nonlinear parameter of `spec` from each start; keeps the lowest χ²_train.
+/// Fits the nonlinear parameters of `spec` from each start — every one, but for the nominal
+/// actuator's dynamics where `spec` holds them ([`ModelSpec::frees_actuator_dynamics`]) —
+/// and keeps the lowest χ²_train. A held parameter's standard deviation is 0.
 pub fn fit_model(
     problem: &Problem,
     spec: &ModelSpec,
@@ -187,7 +189,10 @@ pub fn fit_model(
     opts: FitOptions,
     fan: &dyn Fan,
 ) -> Option<Fitted> {
-    let free: Vec<usize> = (0..spec.n_nonlinear()).collect();
+    let hold = !spec.frees_actuator_dynamics();
+    let free: Vec<usize> = (0..spec.n_nonlinear())
+        .filter(|&i| !hold || !(ACTUATOR_LAG..ACTUATOR_LAG + 2).contains(&i))
+        .collect();
     // The starts are independent fits: a fan may run them side by side.
     let fits = fan::map(fan, starts.len(), |k| {
         fit_params(problem, spec, &starts[k], &free, opts, None, fan)
@@ -201,10 +206,14 @@ pub fn fit_model(
         }
     })?;
     let scale = chi2_scale(problem, f.eval.chi2_train, free.len());
-    let sd: Vec<f64> = crate::linalg::identified_inverse_diagonal(&f.jtj)
+    let sd_free: Vec<f64> = crate::linalg::identified_inverse_diagonal(&f.jtj)
         .into_iter()
         .map(|v| (v.max(0.0) * scale).sqrt())
         .collect();
+    let mut sd = vec![0.0; spec.n_nonlinear()];
+    for (k, &i) in free.iter().enumerate() {
+        sd[i] = sd_free[k];
+    }
     Some(Fitted {
         spec: spec.clone(),
         theta: f.theta,

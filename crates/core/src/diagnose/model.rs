@@ -289,7 +289,85 @@ impl FixedColumn {
 /// effect of its own (`missing_relaxation`), not something the nominal fit may add silently.
 pub const NOMINAL_TERMS: usize = 2;
 
+/// Index in θ of the nominal actuator's lag; its damping follows.
+///
+/// The nominal twin has the actuator's *linear dynamics* besides its gain: no scanner
+/// follows its drive instantly, and at a few hundred of signal-to-noise its bandwidth shows
+/// as a lag of the deflection behind the drive across every line of a broadband record.
+/// Left out, that lag is what the candidates see first, and `instrument_resonance` or
+/// `channel_delay` takes it for the missing physics on every record, null ones included
+/// (found by an independent simulator whose actuator had a 5–10 kHz mode, or a 3–6 kHz lag).
+///
+/// The dynamics are `1/(1 + a1·s + a2·s²)`, fitted as the lag `a1` in samples (θ, linear:
+/// 0 is the ideal actuator, where its Jacobian column stays alive, unlike a logarithm's) and
+/// the mode's quality factor `Q = √a2/a1` between [`ACTUATOR_Q`]'s bounds, through
+/// `Q = lo + (hi − lo)·(1 − cos x)/2`. The low bound makes it a first-order lag in practice;
+/// the high one keeps it a well-damped roll-off, so a resonance with a peak
+/// (`instrument_resonance`) stays a candidate of its own. The map is periodic rather than a
+/// logistic on purpose: a logistic's derivative dies once a step overshoots toward a bound,
+/// and the fit then sat at `Q = hi` for good — found when a sub-sample channel delay, which
+/// `a1 = delay, Q = 1/√2` reproduces to second order, was left unabsorbed by the corpus's
+/// refit and absorbed by the diagnosis's nominal fit.
+pub const ACTUATOR_LAG: usize = 3 + 2 * NOMINAL_TERMS;
+
+/// The candidates that trade against the nominal actuator's lag: each turns the phase of the
+/// fast lines as a lag does.
+pub const TRADES_WITH_LAG: [Effect; 4] = [
+    Effect::ChannelDelay,
+    Effect::InstrumentResonance,
+    Effect::HydrodynamicDrag,
+    Effect::MissingRelaxation,
+];
+
+/// The nominal actuator mode's quality factor, least and most.
+pub const ACTUATOR_Q: (f64, f64) = (0.1, 1.5);
+
+/// Below this lag (in samples) the nominal actuator is ideal: the mode is left out rather
+/// than discretised with a frequency far beyond the sample rate.
+const IDEAL_LAG_SAMPLES: f64 = 1e-6;
+
+/// The nominal actuator's mode for a lag of `lag_samples` and a damping coordinate `q_phase`
+/// (θ's two coordinates, see [`ACTUATOR_LAG`]); `None`: ideal. A negative lag, a lead, gives a negative
+/// frequency, which the twin refuses: it is not physical.
+pub(crate) fn nominal_actuator_mode(
+    lag_samples: f64,
+    q_phase: f64,
+    fs_hz: f64,
+) -> Option<ResonantMode> {
+    if lag_samples.abs() < IDEAL_LAG_SAMPLES {
+        return None;
+    }
+    let (lo, hi) = ACTUATOR_Q;
+    let q = lo + (hi - lo) * 0.5 * (1.0 - q_phase.cos());
+    let a1_s = lag_samples / fs_hz;
+    Some(ResonantMode {
+        freq_hz: 1.0 / (2.0 * std::f64::consts::PI * q * a1_s),
+        q,
+    })
+}
+
+/// The nominal actuator lag's start, in samples: small, but off zero, where its damping's
+/// column would vanish.
+pub(crate) const ACTUATOR_LAG_START: f64 = 0.05;
+
+/// The damping coordinate's start: the middle of the range (`Q` 0.8), where the map's
+/// derivative is largest.
+pub(crate) const ACTUATOR_Q_START: f64 = std::f64::consts::FRAC_PI_2;
+
 impl ModelSpec {
+    /// Whether a fit of this model frees the nominal actuator's lag and damping
+    /// ([`ACTUATOR_LAG`]), or holds them where the nominal fit put them.
+    ///
+    /// The nominal fit frees them, and so do the candidates that trade against them — a
+    /// delay, a resonance, a drag and a fast retardation time all turn the phase of the fast
+    /// lines as a lag does. Every other candidate's refit holds them: under the twin's
+    /// zero-order hold a lag of a few tenths of a sample barely moves the output, and steps
+    /// along that nearly flat direction took refits into other basins (an adhesive neck
+    /// refitted with them free lost half its χ² drop, and the pair it belonged to was missed).
+    pub fn frees_actuator_dynamics(&self) -> bool {
+        self.effects.is_empty() || self.effects.iter().any(|e| TRADES_WITH_LAG.contains(e))
+    }
+
     pub fn nominal() -> Self {
         Self::with(&[])
     }
@@ -390,9 +468,10 @@ impl ModelSpec {
         }
     }
 
-    /// Number of nominal nonlinear parameters: ln g, contact point, ln J_inst, (ln Ji, ln τi)×n.
+    /// Number of nominal nonlinear parameters: ln g, contact point, ln J_inst, (ln Ji, ln τi)×n,
+    /// then the actuator's lag and damping ([`ACTUATOR_LAG`]).
     pub fn n_nominal(&self) -> usize {
-        3 + 2 * NOMINAL_TERMS
+        3 + 2 * NOMINAL_TERMS + 2
     }
 
     pub fn n_nonlinear(&self) -> usize {
@@ -518,7 +597,26 @@ impl Problem {
             let default = 0.01 * 10f64.powi(i as i32);
             th.push(terms.get(i).map_or(default, |t| t.tau_s).ln());
         }
+        th.extend([ACTUATOR_LAG_START, ACTUATOR_Q_START]);
         th
+    }
+
+    /// The nominal actuator's dynamics at θ, as reported.
+    pub fn actuator_dynamics(&self, th: &[f64]) -> super::ActuatorDynamics {
+        let mode = self.actuator_mode(th);
+        super::ActuatorDynamics {
+            lag_s: if mode.is_some() {
+                th[ACTUATOR_LAG] / self.fs_hz
+            } else {
+                0.0
+            },
+            q: mode.map(|m| m.q),
+        }
+    }
+
+    /// The nominal actuator's mode at θ (see [`nominal_actuator_mode`]).
+    fn actuator_mode(&self, th: &[f64]) -> Option<ResonantMode> {
+        nominal_actuator_mode(th[ACTUATOR_LAG], th[ACTUATOR_LAG + 1], self.fs_hz)
     }
 
     /// The material of θ (nominal terms plus `missing_relaxation`'s when on).
@@ -553,7 +651,7 @@ impl Problem {
         let p = |e: Effect, i: usize| spec.offset_of(e).map(|o| th[o + i]);
         let mut actuator = ActuatorConfig {
             gain_nm_per_v: self.gain(th),
-            modes: vec![],
+            modes: self.actuator_mode(th).into_iter().collect(),
             hysteresis: None,
             creep: None,
         };

@@ -68,6 +68,7 @@ fn summary_json(s: &FitSummary) -> Value {
             "instantaneous_modulus_pa": s.material.instantaneous_modulus(),
             "relaxed_modulus_pa": s.material.relaxed_modulus(),
         },
+        "actuator": {"lag_s": s.actuator.lag_s, "q": s.actuator.q},
     })
 }
 
@@ -302,6 +303,15 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
     };
     println!("material before: {}", m(&d.before));
     println!("material after:  {}", m(&d.after));
+    let a = |s: &FitSummary| match s.actuator.q {
+        Some(q) => format!("lag {:.2} µs, Q {q:.2}", s.actuator.lag_s * 1e6),
+        None => "ideal (no lag)".to_string(),
+    };
+    println!(
+        "nominal actuator dynamics: {} before, {} after",
+        a(&d.before),
+        a(&d.after)
+    );
     println!("where the nominal residual exceeds the floor (z = σ of the floor's own scatter):");
     let mut any = false;
     for l in d.locations_before.iter().filter(|l| l.significant).take(8) {
