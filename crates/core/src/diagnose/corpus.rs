@@ -35,7 +35,9 @@
 //!   declared sphere (no blunter than 89°), and a drag or creep at the end of its range —
 //!   reach their target through a quieter detector instead: the case's white noise is
 //!   lowered until the bounded effect's visible size is the target multiple. "Near the
-//!   floor" is a ratio; a quieter instrument sees the same physics better.
+//!   floor" is a ratio; a quieter instrument sees the same physics better. An effect the
+//!   nominal refit takes up whole while small and leaves at once above its target (a
+//!   sub-sample delay against the nominal actuator's lag) gets a noisier detector instead.
 //! - `instrument_resonance` is sized by its frequency (quality factor 3–20 per seed; the
 //!   scanner's mode on odd seeds, the lever's first mode on even ones): a mode lower in the
 //!   band acts more. Where even a mode at 1.9 kHz (kept below Nyquist) exceeds the target,
@@ -1273,6 +1275,35 @@ fn build(plan: Plan, drive: &[f64], segments: &[Segment]) -> CorpusCase {
         }
         sigma = quieter;
         plan.base.detector.white_noise_v = quieter;
+        base_defl = deflection(&plan.base, drive, FS_HZ);
+    }
+    // The other way round: an effect the nominal refit takes up whole while small and then
+    // leaves at once above its target (a sub-sample delay, which the nominal actuator's lag
+    // matches until it no longer can) is brought to its target by a noisier detector.
+    let overshoot = sizes
+        .iter()
+        .map(|s| s.rms_multiple / s.target_multiple)
+        .filter(|r| r.is_finite() && *r > 0.0)
+        .fold(f64::INFINITY, f64::min);
+    // Only where no knob stopped at a bound (a mode kept just below Nyquist reports its
+    // larger multiple as it is).
+    if overshoot.is_finite() && overshoot > 1.04 && sizes.iter().all(|s| s.note.is_none()) {
+        let louder = sigma * overshoot;
+        for s in &mut sizes {
+            s.rms_multiple /= overshoot;
+            let why = format!(
+                "white noise raised from {:.3} mV to {:.3} mV: the nominal refit takes up \
+                 smaller sizes whole, and leaves this one above its target",
+                sigma * 1e3,
+                louder * 1e3
+            );
+            s.note = Some(match s.note.take() {
+                Some(n) => format!("{n}; {why}"),
+                None => why,
+            });
+        }
+        sigma = louder;
+        plan.base.detector.white_noise_v = louder;
         base_defl = deflection(&plan.base, drive, FS_HZ);
     }
     let with_all = |effects: &[(Knob, f64)], sizes: &[EffectSize]| {
