@@ -77,8 +77,10 @@ use rand::{Rng, SeedableRng};
 use toml::{Table, Value};
 
 use super::fan::{self, Fan, Serial};
-use super::fit::FD_STEP;
-use super::model::{nominal_actuator_mode, ACTUATOR_LAG_START, ACTUATOR_Q_START, ZC_SCALE_NM};
+use super::fit::{restarted, FD_STEP};
+use super::model::{
+    actuator_restarts, nominal_actuator_mode, ACTUATOR_LAG_START, ACTUATOR_Q_START, ZC_SCALE_NM,
+};
 use crate::estimate::lm::{solve_lazy, LmOptions};
 use crate::prony::{PronySeries, PronyTerm};
 use crate::recording::{Cantilever, Drive, Piezo, Recording, Sample, Sidecar, Tip, FORMAT};
@@ -596,16 +598,21 @@ impl<'a> NominalRefit<'a> {
         c.actuator.gain_nm_per_v = p[0].exp();
         c.sample.contact_point_nm = p[1] * ZC_SCALE_NM;
         c.sample.material.j0_per_pa = p[2].exp();
-        let n = c.sample.material.terms.len();
         for (i, t) in c.sample.material.terms.iter_mut().enumerate() {
             t.j_per_pa = p[3 + 2 * i].exp();
             t.tau_s = p[4 + 2 * i].exp();
         }
-        let lag = 3 + 2 * n;
+        let lag = self.lag_index();
         c.actuator
             .modes
             .extend(nominal_actuator_mode(p[lag], p[lag + 1], FS_HZ));
         c
+    }
+
+    /// Index in `p` of the actuator's lag (its damping follows): after the gain, the contact
+    /// point, J_inst and each term's (ln J, ln τ).
+    fn lag_index(&self) -> usize {
+        3 + 2 * self.clean.sample.material.terms.len()
     }
 
     /// `target − model(p)`, centred (the free offset), or `None` when the twin diverges.
@@ -681,20 +688,13 @@ impl<'a> NominalRefit<'a> {
         } else {
             direct
         };
-        // The actuator's damping and lag trade against a fast retardation time, a drag or a
-        // delay along valleys the fit does not leave by itself, as in the diagnosis's nominal
-        // fit, which restarts with its damping near either bound and its lag tripled: so does
-        // the refit, roughly, and the best rough end is refitted in full. Without it the
-        // corpus called visible a drag the diagnosis's nominal twin took up as a lag.
-        let lag = self.start().len() - 2;
-        let variants = [
-            (best.1[lag], 2.6),
-            (best.1[lag], 0.6),
-            (3.0 * best.1[lag].max(0.2), best.1[lag + 1]),
-        ];
-        let rough_end = variants
-            .iter()
-            .map(|&(l, q)| {
+        // Restarted from other actuator dynamics, as the diagnosis's nominal fit is
+        // (`actuator_restarts`): roughly, and the best rough end is refitted in full. Without
+        // it the corpus called visible a drag the diagnosis's nominal twin took up as a lag.
+        let lag = self.lag_index();
+        let rough_end = actuator_restarts(best.1[lag], best.1[lag + 1])
+            .into_iter()
+            .map(|(l, q)| {
                 let mut p = best.1.clone();
                 p[lag] = l;
                 p[lag + 1] = q;
@@ -727,11 +727,8 @@ impl<'a> NominalRefit<'a> {
 
     /// What the refit from `p0` leaves of `target`, RMS in V, and where it ended (NaN and
     /// `p0` when the twin cannot be run there).
-    ///
-    /// Restarted from where it stopped while that still gains (a thousandth of the cost), as
-    /// the diagnosis's nominal fit is: its damping grown large, the solver stalls in the
-    /// valley the actuator's lag and the fastest retardation time share, and the sizing
-    /// would then call visible what the diagnosis's nominal twin still absorbs.
+    /// Restarted from where it stopped while that gains, as the diagnosis's nominal fit is
+    /// ([`restarted`]).
     fn refit_from(&self, p0: &[f64], target: &[f64], opts: LmOptions) -> (f64, Vec<f64>) {
         let once = |p: &[f64]| {
             solve_lazy(
@@ -741,19 +738,10 @@ impl<'a> NominalRefit<'a> {
                 opts,
             )
         };
-        let Some(mut res) = once(p0) else {
+        let Some(first) = once(p0) else {
             return (f64::NAN, p0.to_vec());
         };
-        for _ in 0..REFIT_RESTARTS {
-            match once(&res.params) {
-                Some(next) if next.cost < res.cost * (1.0 - 1e-3) => res = next,
-                Some(next) if next.cost < res.cost => {
-                    res = next;
-                    break;
-                }
-                _ => break,
-            }
-        }
+        let res = restarted(first, REFIT_RESTARTS, |r| r.cost, |r| once(&r.params));
         ((res.cost / target.len().max(1) as f64).sqrt(), res.params)
     }
 }
@@ -1248,62 +1236,48 @@ fn build(plan: Plan, drive: &[f64], segments: &[Segment]) -> CorpusCase {
         .map(|(k, target)| sizer.size(k, *target))
         .collect();
     let mut plan = plan;
-    // An effect bounded by physics (a third term cannot make the instantaneous compliance
-    // negative, a film cannot be thinner than the indentation, a cone cannot be blunter than
-    // flat) is brought to its target by a quieter detector instead: "near the floor" is a
-    // ratio of effect to noise, and an instrument with less noise sees the same physics
-    // better. The weakest effect of a pair sets the noise; the other then exceeds its target.
-    let shortfall = sizes
-        .iter()
-        .map(|s| s.rms_multiple / s.target_multiple)
-        .filter(|r| r.is_finite() && *r > 0.0)
-        .fold(1.0f64, f64::min);
-    if shortfall < 0.96 {
-        let quieter = sigma * shortfall;
-        for s in &mut sizes {
-            s.rms_multiple /= shortfall;
-            let why = format!(
-                "white noise lowered from {:.3} mV to {:.3} mV so the bounded effect reaches \
-                 its target",
-                sigma * 1e3,
-                quieter * 1e3
-            );
-            s.note = Some(match s.note.take() {
-                Some(n) => format!("{n}; {why}"),
-                None => why,
-            });
-        }
-        sigma = quieter;
-        plan.base.detector.white_noise_v = quieter;
-        base_defl = deflection(&plan.base, drive, FS_HZ);
-    }
-    // The other way round: an effect the nominal refit takes up whole while small and then
-    // leaves at once above its target (a sub-sample delay, which the nominal actuator's lag
-    // matches until it no longer can) is brought to its target by a noisier detector.
-    let overshoot = sizes
+    // The case's detector noise is rescaled so its weakest effect meets its target, in two
+    // cases. An effect bounded by physics (a third term cannot make the instantaneous
+    // compliance negative, a film cannot be thinner than the indentation, a cone cannot be
+    // blunter than flat) gets a quieter detector: "near the floor" is a ratio of effect to
+    // noise, and an instrument with less noise sees the same physics better. An effect the
+    // nominal refit takes up whole while small and then leaves at once above its target (a
+    // sub-sample delay, which the nominal actuator's lag matches until it no longer can) gets
+    // a noisier one — only where no knob stopped at a bound (a mode kept just below Nyquist
+    // reports its larger multiple as it is). The weakest effect of a pair sets the noise; the
+    // other then exceeds its target.
+    let weakest = sizes
         .iter()
         .map(|s| s.rms_multiple / s.target_multiple)
         .filter(|r| r.is_finite() && *r > 0.0)
         .fold(f64::INFINITY, f64::min);
-    // Only where no knob stopped at a bound (a mode kept just below Nyquist reports its
-    // larger multiple as it is).
-    if overshoot.is_finite() && overshoot > 1.04 && sizes.iter().all(|s| s.note.is_none()) {
-        let louder = sigma * overshoot;
+    let rescale = if weakest < 0.96 {
+        Some(("lowered", " so the bounded effect reaches its target"))
+    } else if weakest.is_finite() && weakest > 1.04 && sizes.iter().all(|s| s.note.is_none()) {
+        Some((
+            "raised",
+            ": the nominal refit takes up smaller sizes whole, and leaves this one above its \
+             target",
+        ))
+    } else {
+        None
+    };
+    if let Some((verb, reason)) = rescale {
+        let rescaled = sigma * weakest;
+        let why = format!(
+            "white noise {verb} from {:.3} mV to {:.3} mV{reason}",
+            sigma * 1e3,
+            rescaled * 1e3
+        );
         for s in &mut sizes {
-            s.rms_multiple /= overshoot;
-            let why = format!(
-                "white noise raised from {:.3} mV to {:.3} mV: the nominal refit takes up \
-                 smaller sizes whole, and leaves this one above its target",
-                sigma * 1e3,
-                louder * 1e3
-            );
+            s.rms_multiple /= weakest;
             s.note = Some(match s.note.take() {
                 Some(n) => format!("{n}; {why}"),
-                None => why,
+                None => why.clone(),
             });
         }
-        sigma = louder;
-        plan.base.detector.white_noise_v = louder;
+        sigma = rescaled;
+        plan.base.detector.white_noise_v = rescaled;
         base_defl = deflection(&plan.base, drive, FS_HZ);
     }
     let with_all = |effects: &[(Knob, f64)], sizes: &[EffectSize]| {

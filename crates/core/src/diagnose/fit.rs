@@ -179,6 +179,29 @@ pub fn fit_params(
     })
 }
 
+/// Restarts a fit from where it stopped while that still gains: Levenberg–Marquardt can stall
+/// in a long valley with its damping grown large (the actuator's lag and the fastest
+/// retardation time both delay the fast lines), and a fresh start, its damping reset, then
+/// still goes down. Restarted while a restart gains more than a thousandth of the cost, at
+/// most `max` times; a smaller gain is taken and ends it. The diagnosis's nominal fit and the
+/// corpus's sizing refit follow this one rule, so the corpus does not call visible what the
+/// diagnosis's nominal twin still absorbs.
+pub fn restarted<T>(
+    mut best: T,
+    max: usize,
+    cost: impl Fn(&T) -> f64,
+    again: impl Fn(&T) -> Option<T>,
+) -> T {
+    for _ in 0..max {
+        match again(&best) {
+            Some(next) if cost(&next) < cost(&best) * (1.0 - 1e-3) => best = next,
+            Some(next) if cost(&next) < cost(&best) => return next,
+            _ => break,
+        }
+    }
+    best
+}
+
 /// Fits the nonlinear parameters of `spec` from each start — every one, but for the nominal
 /// actuator's dynamics where `spec` holds them ([`ModelSpec::frees_actuator_dynamics`]) —
 /// and keeps the lowest χ²_train. A held parameter's standard deviation is 0.

@@ -40,7 +40,9 @@ use crate::prony::PronySeries;
 use crate::recording::{Drive, Recording};
 use crate::twin::TipConfig;
 use fan::Fan;
-use fit::{fit_model, orthonormal_basis, scan_step_parameters, screen, FitOptions, Fitted};
+use fit::{
+    fit_model, orthonormal_basis, restarted, scan_step_parameters, screen, FitOptions, Fitted,
+};
 use locate::{Location, Phase};
 use model::{DriftForm, Effect, ModelSpec, Problem, TipForm, NOMINAL_TERMS};
 use noise::NoiseModel;
@@ -251,7 +253,10 @@ pub struct Diagnosis {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct Simulations {
     pub nominal: usize,
+    /// The first screening of every candidate.
     pub screening: usize,
+    /// The candidates' refits, with the nominal fit's refits from them and, when those find
+    /// a clearly better nominal fit, the second round (screening included).
     pub refits: usize,
     pub pairs: usize,
 }
@@ -547,19 +552,22 @@ pub fn diagnose_with(
     };
     // The offline fitter's material is usually the right basin: other starts are tried only
     // when the fit from it stays well above the floor.
-    // Levenberg–Marquardt can stall in a long valley with its damping grown large — the
-    // actuator's lag and the fastest retardation time both delay the fast lines — and a fresh
-    // start from where it stopped, its damping reset, then still goes down. Restarted while
-    // it does (by more than a thousandth), a few times at most.
-    let polished = |problem: &Problem, mut f: Fitted| -> Fitted {
-        for _ in 0..NOMINAL_RESTARTS {
-            match fit_model(problem, &nominal, &[f.theta.clone()], nominal_opts, fan) {
-                Some(g) if g.eval.chi2_train < f.eval.chi2_train * (1.0 - 1e-3) => f = g,
-                Some(g) if g.eval.chi2_train < f.eval.chi2_train => return g,
-                _ => break,
-            }
-        }
-        f
+    // Every nominal fit is restarted from where it stopped while that gains (`restarted`).
+    let polished = |problem: &Problem, f: Fitted| -> Fitted {
+        restarted(
+            f,
+            NOMINAL_RESTARTS,
+            |f| f.eval.chi2_train,
+            |f| {
+                fit_model(
+                    problem,
+                    &nominal,
+                    std::slice::from_ref(&f.theta),
+                    nominal_opts,
+                    fan,
+                )
+            },
+        )
     };
     let fit_nominal = |problem: &Problem| -> Result<Fitted, DiagnoseError> {
         let first = fit_model(problem, &nominal, &starts[..1], nominal_opts, fan)
@@ -568,22 +576,15 @@ pub fn diagnose_with(
         Ok(match first {
             Some(f) if at_floor(&f) => f,
             first => {
-                // The actuator's damping and lag trade against the fastest retardation time
-                // along a long valley whose far end (a near-critically-damped mode mimicking
-                // a fast relaxation's gain) the fit from the first start does not reach: the
-                // first fit is also restarted with its damping near either bound (Q 1.38 and
-                // 0.22, see `model::ACTUATOR_LAG`) and with its lag tripled.
+                // The first fit is also restarted from other actuator dynamics
+                // (`model::actuator_restarts`).
                 let mut others = starts[1..].to_vec();
                 if let Some(f) = &first {
-                    let (lag, q) = (model::ACTUATOR_LAG, model::ACTUATOR_LAG + 1);
-                    for (l, ql) in [
-                        (f.theta[lag], 2.6),
-                        (f.theta[lag], 0.6),
-                        (3.0 * f.theta[lag].max(0.2), f.theta[q]),
-                    ] {
+                    let lag = model::ACTUATOR_LAG;
+                    for (l, q) in model::actuator_restarts(f.theta[lag], f.theta[lag + 1]) {
                         let mut t = f.theta.clone();
                         t[lag] = l;
-                        t[q] = ql;
+                        t[lag + 1] = q;
                         others.push(t);
                     }
                 }
@@ -672,48 +673,12 @@ pub fn diagnose_with(
         // 4. Full refits of the strongest, then pairs.
         let distorted = nom.eval.chi2_train / n_tr > 1.2;
         let mut singles: Vec<(Effect, Fitted)> = vec![];
-        // Only candidates whose screening already beats it are refitted: a refit cannot make a
-        // candidate that explains nothing significant.
-        let n_refit = screened
-            .iter()
-            .take(opts.full_refits)
-            .take_while(|(e, d, _)| *d > penalty_of(*e))
-            .count();
-        // Candidates a located mismatch points at are refitted whatever their screening: the
-        // screening is linearised around a nominal fit that a large effect may have distorted.
-        let implied: Vec<Effect> = locations_before
-            .iter()
-            .filter(|l| l.significant)
-            .filter_map(|l| match l.name.as_str() {
-                "pull_off" => Some(Effect::Adhesion),
-                "mains_lines" => Some(Effect::MainsInterference),
-                _ => None,
-            })
-            .collect();
-        let mut to_refit: Vec<usize> = (0..n_refit).collect();
-        if let Some(only) = only {
-            to_refit = (0..screened.len())
+        let to_refit: Vec<usize> = match only {
+            Some(only) => (0..screened.len())
                 .filter(|&i| only.contains(&screened[i].0))
-                .collect();
-        }
-        // The strongest candidate's look-alikes are refitted too: the screening is linearised
-        // about a nominal fit that has already bent toward the strongest effect, and physics that
-        // looks alike is exactly what that bending hides (a drag behind a fast retardation time).
-        let look_alikes = if n_refit > 0 {
-            screened[0].0.look_alikes()
-        } else {
-            &[]
+                .collect(),
+            None => chosen_for_refit(&screened, &locations_before, opts.full_refits, penalty_of),
         };
-        for e in implied.into_iter().chain(look_alikes.iter().copied()) {
-            if only.is_some() {
-                break;
-            }
-            if let Some(i) = screened.iter().position(|s| s.0 == e) {
-                if !to_refit.contains(&i) {
-                    to_refit.push(i);
-                }
-            }
-        }
         // The refits are independent too. Each form of a candidate (`ModelSpec::variants`) is
         // fitted; the one with the lower BIC stands for the candidate (`bic`).
         // The plain form of each candidate whose best form is another one: a pair may want the
@@ -814,33 +779,27 @@ pub fn diagnose_with(
         let again = examine(&nom, Some(&model::TRADES_WITH_LAG));
         ex.white_nom = again.white_nom;
         ex.locations_before = again.locations_before;
-        let keep_better = |now: &mut Vec<(Effect, Fitted)>,
-                           to_refit: &mut Vec<usize>,
-                           (e, f): (Effect, Fitted)| {
-            match now.iter_mut().find(|(n, _)| *n == e) {
-                Some(slot) => {
-                    if bic(&f) < bic(&slot.1) {
-                        slot.1 = f;
-                    }
-                }
-                None => {
-                    now.push((e, f));
-                    if let Some(i) = ex.screened.iter().position(|s| s.0 == e) {
-                        if !to_refit.contains(&i) {
-                            to_refit.push(i);
-                        }
-                    }
+        // A candidate refitted in both rounds keeps the better refit; one refitted only now
+        // joins the refitted.
+        let keep_better = |now: &mut Vec<(Effect, Fitted)>, (e, f): (Effect, Fitted)| match now
+            .iter_mut()
+            .find(|(n, _)| *n == e)
+        {
+            Some(slot) if bic(&f) < bic(&slot.1) => slot.1 = f,
+            Some(_) => {}
+            None => now.push((e, f)),
+        };
+        for (e, f) in again.singles {
+            if let Some(i) = ex.screened.iter().position(|s| s.0 == e) {
+                if !ex.to_refit.contains(&i) {
+                    ex.to_refit.push(i);
                 }
             }
-        };
-        let mut to_refit = std::mem::take(&mut ex.to_refit);
-        for ef in again.singles {
-            keep_better(&mut ex.singles, &mut to_refit, ef);
+            keep_better(&mut ex.singles, (e, f));
         }
         for ef in again.plain_forms {
-            keep_better(&mut ex.plain_forms, &mut to_refit, ef);
+            keep_better(&mut ex.plain_forms, ef);
         }
-        ex.to_refit = to_refit;
     }
     let Examined {
         white_nom,
@@ -1181,6 +1140,52 @@ fn against_floor(
         at_floor_limit,
         after_at_floor: after.held_out_chi2_per_sample <= at_floor_limit,
     }
+}
+
+/// The candidates refitted in full, as indices into `screened` (strongest first): those whose
+/// screening beats their price (`penalty_of`), `full_refits` at most; those a located mismatch
+/// points at; and the strongest one's look-alikes.
+fn chosen_for_refit(
+    screened: &[(Effect, f64, Vec<f64>)],
+    locations_before: &[Location],
+    full_refits: usize,
+    penalty_of: impl Fn(Effect) -> f64,
+) -> Vec<usize> {
+    // Only candidates whose screening already beats it are refitted: a refit cannot make a
+    // candidate that explains nothing significant.
+    let n_refit = screened
+        .iter()
+        .take(full_refits)
+        .take_while(|(e, d, _)| *d > penalty_of(*e))
+        .count();
+    // Candidates a located mismatch points at are refitted whatever their screening: the
+    // screening is linearised around a nominal fit that a large effect may have distorted.
+    let implied: Vec<Effect> = locations_before
+        .iter()
+        .filter(|l| l.significant)
+        .filter_map(|l| match l.name.as_str() {
+            "pull_off" => Some(Effect::Adhesion),
+            "mains_lines" => Some(Effect::MainsInterference),
+            _ => None,
+        })
+        .collect();
+    let mut to_refit: Vec<usize> = (0..n_refit).collect();
+    // The strongest candidate's look-alikes are refitted too: the screening is linearised
+    // about a nominal fit that has already bent toward the strongest effect, and physics that
+    // looks alike is exactly what that bending hides (a drag behind a fast retardation time).
+    let look_alikes = if n_refit > 0 {
+        screened[0].0.look_alikes()
+    } else {
+        &[]
+    };
+    for e in implied.into_iter().chain(look_alikes.iter().copied()) {
+        if let Some(i) = screened.iter().position(|s| s.0 == e) {
+            if !to_refit.contains(&i) {
+                to_refit.push(i);
+            }
+        }
+    }
+    to_refit
 }
 
 fn summary(problem: &Problem, f: &Fitted) -> FitSummary {

@@ -346,6 +346,15 @@ pub(crate) fn nominal_actuator_mode(
     })
 }
 
+/// Where a nominal fit that stopped at the actuator's `(lag, damping)` is restarted from: its
+/// damping near either bound (`Q` 1.38 and 0.22) and its lag tripled. The damping and lag
+/// trade against the fastest retardation time, a drag or a delay along valleys whose far end
+/// (a near-critically-damped mode mimicking a fast relaxation's gain) a local fit does not
+/// reach. The diagnosis's nominal fit and the corpus's sizing refit restart from the same.
+pub(crate) fn actuator_restarts(lag: f64, q_phase: f64) -> [(f64, f64); 3] {
+    [(lag, 2.6), (lag, 0.6), (3.0 * lag.max(0.2), q_phase)]
+}
+
 /// The nominal actuator lag's start, in samples: small, but off zero, where its damping's
 /// column would vanish.
 pub(crate) const ACTUATOR_LAG_START: f64 = 0.05;
@@ -1126,6 +1135,39 @@ pub fn n_params(problem: &Problem, spec: &ModelSpec) -> usize {
 
 #[cfg(test)]
 mod tests {
+    /// The nominal actuator's mode is the lag it is fitted as: `a1 = 1/(2π·f·Q)` is the lag in
+    /// samples over the sample rate, `Q` stays within its bounds (reached at phase 0 and π),
+    /// and a lag of zero is the ideal actuator.
+    #[test]
+    fn nominal_actuator_mode_is_its_lag() {
+        let fs = 4000.0;
+        let (lo, hi) = ACTUATOR_Q;
+        assert!(nominal_actuator_mode(0.0, 1.0, fs).is_none());
+        for (lag, phase) in [
+            (0.3, 0.0),
+            (1.0, ACTUATOR_Q_START),
+            (2.5, std::f64::consts::PI),
+        ] {
+            let m = nominal_actuator_mode(lag, phase, fs).unwrap();
+            let a1_samples = fs / (2.0 * std::f64::consts::PI * m.freq_hz * m.q);
+            assert!(
+                (a1_samples - lag).abs() < 1e-12 * lag,
+                "{lag}: {a1_samples}"
+            );
+            assert!(m.q >= lo - 1e-12 && m.q <= hi + 1e-12, "Q {}", m.q);
+        }
+        assert!((nominal_actuator_mode(1.0, 0.0, fs).unwrap().q - lo).abs() < 1e-12);
+        assert!(
+            (nominal_actuator_mode(1.0, std::f64::consts::PI, fs)
+                .unwrap()
+                .q
+                - hi)
+                .abs()
+                < 1e-12
+        );
+        assert!((nominal_actuator_mode(1.0, ACTUATOR_Q_START, fs).unwrap().q - 0.8).abs() < 1e-12);
+    }
+
     use super::*;
 
     /// Each effect with forms is fitted in every one of them, and in every combination when
