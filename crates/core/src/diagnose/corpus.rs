@@ -79,7 +79,7 @@ use toml::{Table, Value};
 use super::fan::{self, Fan, Serial};
 use super::fit::{restarted, FD_STEP};
 use super::model::{
-    actuator_restarts, nominal_actuator_mode, ACTUATOR_LAG_START, ACTUATOR_Q_START, ZC_SCALE_NM,
+    damping_shows, nominal_actuator_mode, ACTUATOR_LAG_START, ACTUATOR_Q_START, ZC_SCALE_NM,
 };
 use crate::estimate::lm::{solve_lazy, LmOptions};
 use crate::prony::{PronySeries, PronyTerm};
@@ -624,10 +624,18 @@ impl<'a> NominalRefit<'a> {
         r.iter().all(|v| v.is_finite()).then_some(r)
     }
 
-    /// Jacobian of [`Self::residual`] at `p` (where it is `r`), by forward differences.
-    fn jacobian(&self, p: &[f64], r: &DVector<f64>, target: &[f64]) -> Option<DMatrix<f64>> {
-        let cols = (0..p.len())
-            .map(|k| {
+    /// Jacobian of [`Self::residual`] at `p` (where it is `r`) over the parameters `which`,
+    /// by forward differences.
+    fn jacobian(
+        &self,
+        p: &[f64],
+        r: &DVector<f64>,
+        target: &[f64],
+        which: &[usize],
+    ) -> Option<DMatrix<f64>> {
+        let cols = which
+            .iter()
+            .map(|&k| {
                 let mut q = p.to_vec();
                 q[k] += FD_STEP;
                 self.residual(&q, target).map(|rk| (rk - r) / FD_STEP)
@@ -647,7 +655,7 @@ impl<'a> NominalRefit<'a> {
         // diverge, the offset alone is what can be absorbed for certain.
         let tangent = self
             .residual(&p, &zero)
-            .and_then(|r| self.jacobian(&p, &r, &zero));
+            .and_then(|r| self.jacobian(&p, &r, &zero, &(0..p.len()).collect::<Vec<_>>()));
         match tangent {
             Some(j) => {
                 let mut m = ones.resize_horizontally(1 + j.ncols(), 0.0);
@@ -683,35 +691,10 @@ impl<'a> NominalRefit<'a> {
         let (_, mid) = self.refit_from(&start, &halfway, rough);
         let direct = self.refit_from(&start, target, Self::fit_options());
         let continued = self.refit_from(&mid, target, Self::fit_options());
-        let best = if continued.0 < direct.0 || direct.0.is_nan() {
-            continued
+        if continued.0 < direct.0 || direct.0.is_nan() {
+            continued.0
         } else {
-            direct
-        };
-        // Restarted from other actuator dynamics, as the diagnosis's nominal fit is
-        // (`actuator_restarts`): roughly, and the best rough end is refitted in full. Without
-        // it the corpus called visible a drag the diagnosis's nominal twin took up as a lag.
-        let lag = self.lag_index();
-        let rough_end = actuator_restarts(best.1[lag], best.1[lag + 1])
-            .into_iter()
-            .map(|(l, q)| {
-                let mut p = best.1.clone();
-                p[lag] = l;
-                p[lag + 1] = q;
-                self.refit_from(&p, target, rough)
-            })
-            .filter(|r| r.0.is_finite())
-            .min_by(|a, b| a.0.total_cmp(&b.0));
-        match rough_end {
-            Some((_, p)) => {
-                let polished = self.refit_from(&p, target, Self::fit_options()).0;
-                if polished < best.0 || best.0.is_nan() {
-                    polished
-                } else {
-                    best.0
-                }
-            }
-            None => best.0,
+            direct.0
         }
     }
 
@@ -730,19 +713,34 @@ impl<'a> NominalRefit<'a> {
     /// Restarted from where it stopped while that gains, as the diagnosis's nominal fit is
     /// ([`restarted`]).
     fn refit_from(&self, p0: &[f64], target: &[f64], opts: LmOptions) -> (f64, Vec<f64>) {
-        let once = |p: &[f64]| {
-            solve_lazy(
-                p,
-                |p| self.residual(p, target),
-                |p, r| self.jacobian(p, r, target),
+        // (cost, where it ended); the damping held where the lag is too short for it to
+        // show, as the diagnosis's fits hold it (`model::damping_shows`).
+        let once = |p: &[f64]| -> Option<(f64, Vec<f64>)> {
+            let lag = self.lag_index();
+            let free: Vec<usize> = (0..p.len())
+                .filter(|&i| i != lag + 1 || damping_shows(p[lag]))
+                .collect();
+            let full = |x: &[f64]| {
+                let mut q = p.to_vec();
+                for (&i, v) in free.iter().zip(x) {
+                    q[i] = *v;
+                }
+                q
+            };
+            let x0: Vec<f64> = free.iter().map(|&i| p[i]).collect();
+            let res = solve_lazy(
+                &x0,
+                |x| self.residual(&full(x), target),
+                |x, r| self.jacobian(&full(x), r, target, &free),
                 opts,
-            )
+            )?;
+            Some((res.cost, full(&res.params)))
         };
         let Some(first) = once(p0) else {
             return (f64::NAN, p0.to_vec());
         };
-        let res = restarted(first, REFIT_RESTARTS, |r| r.cost, |r| once(&r.params));
-        ((res.cost / target.len().max(1) as f64).sqrt(), res.params)
+        let (cost, params) = restarted(first, REFIT_RESTARTS, |r| r.0, |r| once(&r.1));
+        ((cost / target.len().max(1) as f64).sqrt(), params)
     }
 }
 
@@ -854,7 +852,7 @@ fn knob(id: &'static str, seed: u64, base: &TwinConfig, tag: &str) -> Knob {
                 increasing: false,
                 sign: None,
                 apply: Box::new(move |c, p| {
-                    let mode = ResonantMode { freq_hz: p, q };
+                    let mode = ResonantMode::held(p, q);
                     if lever {
                         c.cantilever.first_mode = Some(mode);
                         vec![

@@ -6,7 +6,7 @@
 //! Jacobian costs one twin simulation per parameter.
 
 use super::fan::{self, Fan};
-use super::model::{Evaluation, ModelSpec, Problem, ACTUATOR_LAG};
+use super::model::{damping_shows, Evaluation, ModelSpec, Problem, ACTUATOR_LAG};
 use crate::estimate::lm::{solve_lazy, Damping, LmOptions};
 use nalgebra::{DMatrix, DVector};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -204,7 +204,8 @@ pub fn restarted<T>(
 
 /// Fits the nonlinear parameters of `spec` from each start — every one, but for the nominal
 /// actuator's dynamics where `spec` holds them ([`ModelSpec::frees_actuator_dynamics`]) —
-/// and keeps the lowest χ²_train. A held parameter's standard deviation is 0.
+/// and keeps the lowest χ²_train. The actuator's damping is held too where the start's lag is
+/// too short for it to show ([`damping_shows`]). A held parameter's standard deviation is 0.
 pub fn fit_model(
     problem: &Problem,
     spec: &ModelSpec,
@@ -213,16 +214,25 @@ pub fn fit_model(
     fan: &dyn Fan,
 ) -> Option<Fitted> {
     let hold = !spec.frees_actuator_dynamics();
-    let free: Vec<usize> = (0..spec.n_nonlinear())
-        .filter(|&i| !hold || !(ACTUATOR_LAG..ACTUATOR_LAG + 2).contains(&i))
-        .collect();
+    let free_from = |start: &[f64]| -> Vec<usize> {
+        (0..spec.n_nonlinear())
+            .filter(|&i| {
+                if hold {
+                    !(ACTUATOR_LAG..ACTUATOR_LAG + 2).contains(&i)
+                } else {
+                    i != ACTUATOR_LAG + 1 || damping_shows(start[ACTUATOR_LAG])
+                }
+            })
+            .collect()
+    };
     // The starts are independent fits: a fan may run them side by side.
     let fits = fan::map(fan, starts.len(), |k| {
-        fit_params(problem, spec, &starts[k], &free, opts, None, fan)
+        let free = free_from(&starts[k]);
+        fit_params(problem, spec, &starts[k], &free, opts, None, fan).map(|f| (f, free))
     });
     // The lowest χ²; the first of equals, as the starts were listed.
-    let f = fits.into_iter().flatten().reduce(|b, f| {
-        if f.eval.chi2_train < b.eval.chi2_train {
+    let (f, free) = fits.into_iter().flatten().reduce(|b, f| {
+        if f.0.eval.chi2_train < b.0.eval.chi2_train {
             f
         } else {
             b

@@ -576,18 +576,8 @@ pub fn diagnose_with(
         Ok(match first {
             Some(f) if at_floor(&f) => f,
             first => {
-                // The first fit is also restarted from other actuator dynamics
-                // (`model::actuator_restarts`).
-                let mut others = starts[1..].to_vec();
-                if let Some(f) = &first {
-                    let lag = model::ACTUATOR_LAG;
-                    for (l, q) in model::actuator_restarts(f.theta[lag], f.theta[lag + 1]) {
-                        let mut t = f.theta.clone();
-                        t[lag] = l;
-                        t[lag + 1] = q;
-                        others.push(t);
-                    }
-                }
+                let others = starts[1..].to_vec();
+                // `fit_model` keeps the best of the starts: only that one is polished.
                 let rest = fit_model(problem, &nominal, &others, nominal_opts, fan)
                     .map(|f| polished(problem, f));
                 match (first, rest) {
@@ -742,14 +732,13 @@ pub fn diagnose_with(
             .filter(|f| f.eval.chi2_train < nom.eval.chi2_train)
             .map(|f| f.theta[..n_nom].to_vec())
             .collect();
-        fan::map(fan, from.len(), |k| {
-            fit_model(problem, &nominal, &from[k..=k], nominal_opts, fan)
-                .map(|f| polished(problem, f))
-        })
-        .into_iter()
-        .flatten()
-        .filter(|f| f.eval.chi2_train < nom.eval.chi2_train)
-        .min_by(|a, b| a.eval.chi2_train.total_cmp(&b.eval.chi2_train))
+        // The best of the starts is polished, not each (`fit_model` keeps the best).
+        if from.is_empty() {
+            return None;
+        }
+        fit_model(problem, &nominal, &from, nominal_opts, fan)
+            .map(|f| polished(problem, f))
+            .filter(|f| f.eval.chi2_train < nom.eval.chi2_train)
     };
     let mut ex = examine(&nom, None);
     // A refit moves the nominal parameters with the candidate's, and can reach a better

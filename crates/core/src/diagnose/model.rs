@@ -17,6 +17,7 @@
 use crate::prony::{PronySeries, PronyTerm};
 use crate::twin::actuator::{ActuatorConfig, BoucWen, Creep, ResonantMode};
 use crate::twin::detector::DetectorConfig;
+use crate::twin::dynamics::InputHold;
 use crate::twin::{
     AdhesiveNeck, CantileverConfig, ReferenceConfig, SampleConfig, TipConfig, Twin, TwinConfig,
 };
@@ -327,14 +328,19 @@ pub const ACTUATOR_Q: (f64, f64) = (0.1, 1.5);
 const IDEAL_LAG_SAMPLES: f64 = 1e-6;
 
 /// The nominal actuator's mode for a lag of `lag_samples` and a damping coordinate `q_phase`
-/// (θ's two coordinates, see [`ACTUATOR_LAG`]); `None`: ideal. A negative lag, a lead, gives a negative
-/// frequency, which the twin refuses: it is not physical.
+/// (θ's two coordinates, see [`ACTUATOR_LAG`]); `None`: ideal. A negative lag, a lead, is not
+/// physical and is ideal too: the fit then finds the χ² flat below zero, not a wall (a
+/// lead's negative frequency would make the twin diverge, and a fit pushed toward a lead —
+/// by a drag, whose force leads the motion — stalled against it).
+///
+/// The mode's input ramps between samples ([`InputHold::Ramped`]): under a held input a
+/// lag below half a sample barely showed, and the fit could not find it from a small one.
 pub(crate) fn nominal_actuator_mode(
     lag_samples: f64,
     q_phase: f64,
     fs_hz: f64,
 ) -> Option<ResonantMode> {
-    if lag_samples.abs() < IDEAL_LAG_SAMPLES {
+    if lag_samples.is_nan() || lag_samples < IDEAL_LAG_SAMPLES {
         return None;
     }
     let (lo, hi) = ACTUATOR_Q;
@@ -343,20 +349,25 @@ pub(crate) fn nominal_actuator_mode(
     Some(ResonantMode {
         freq_hz: 1.0 / (2.0 * std::f64::consts::PI * q * a1_s),
         q,
+        input: InputHold::Ramped,
     })
 }
 
-/// Where a nominal fit that stopped at the actuator's `(lag, damping)` is restarted from: its
-/// damping near either bound (`Q` 1.38 and 0.22) and its lag tripled. The damping and lag
-/// trade against the fastest retardation time, a drag or a delay along valleys whose far end
-/// (a near-critically-damped mode mimicking a fast relaxation's gain) a local fit does not
-/// reach. The diagnosis's nominal fit and the corpus's sizing refit restart from the same.
-pub(crate) fn actuator_restarts(lag: f64, q_phase: f64) -> [(f64, f64); 3] {
-    [(lag, 2.6), (lag, 0.6), (3.0 * lag.max(0.2), q_phase)]
+/// Below this lag, in samples, the nominal actuator's damping is held where the fit starts.
+/// It shows only through `a2 = (Q·a1)²`: at the top excited line (ω·T ≈ 1.3) and a lag of a
+/// quarter sample its part of the response is a tenth of the lag's. Below, its Jacobian
+/// column is tiny but not zero, its Gauss–Newton step huge, and the solver — which scales a
+/// step down whole until its largest component fits — then moved nothing else: a drag's
+/// nominal fit stalled at 47 times the χ² it reaches with the damping held.
+pub(crate) const DAMPING_SHOWS_FROM_LAG: f64 = 0.25;
+
+/// Whether a fit starting at this lag (samples) frees the actuator's damping.
+pub(crate) fn damping_shows(lag_samples: f64) -> bool {
+    lag_samples >= DAMPING_SHOWS_FROM_LAG
 }
 
-/// The nominal actuator lag's start, in samples: small, but off zero, where its damping's
-/// column would vanish.
+/// The nominal actuator lag's start, in samples: small, but off zero, where the χ² is flat
+/// on one side (a lead is ideal too).
 pub(crate) const ACTUATOR_LAG_START: f64 = 0.05;
 
 /// The damping coordinate's start: the middle of the range (`Q` 0.8), where the map's
@@ -369,10 +380,11 @@ impl ModelSpec {
     ///
     /// The nominal fit frees them, and so do the candidates that trade against them — a
     /// delay, a resonance, a drag and a fast retardation time all turn the phase of the fast
-    /// lines as a lag does. Every other candidate's refit holds them: under the twin's
-    /// zero-order hold a lag of a few tenths of a sample barely moves the output, and steps
-    /// along that nearly flat direction took refits into other basins (an adhesive neck
-    /// refitted with them free lost half its χ² drop, and the pair it belonged to was missed).
+    /// lines as a lag does. Every other candidate's refit holds them: they have nothing to
+    /// trade with, and when the actuator's input was still held over each sample (so a lag
+    /// of a few tenths of a sample was nearly flat) steps along them took refits into other
+    /// basins (an adhesive neck refitted with them free lost half its χ² drop, and the pair
+    /// it belonged to was missed).
     pub fn frees_actuator_dynamics(&self) -> bool {
         self.effects.is_empty() || self.effects.iter().any(|e| TRADES_WITH_LAG.contains(e))
     }
@@ -686,10 +698,7 @@ impl Problem {
             p(Effect::InstrumentResonance, 0),
             p(Effect::InstrumentResonance, 1),
         ) {
-            actuator.modes.push(ResonantMode {
-                freq_hz: f.exp(),
-                q: q.exp(),
-            });
+            actuator.modes.push(ResonantMode::held(f.exp(), q.exp()));
         }
         let tip = if spec.has(Effect::TipGeometry) && spec.tip == TipForm::Blunted {
             let depth = p(Effect::TipGeometry, 0).map_or(1.0, f64::exp);

@@ -4,7 +4,7 @@
 //! Bouc–Wen hysteretic state and `c` the creep state → resonant modes in series → position.
 //! Positive displacement moves the cantilever base toward the sample.
 
-use super::dynamics::{FirstOrder, SecondOrder};
+use super::dynamics::{FirstOrder, InputHold, SecondOrder};
 use serde::{Deserialize, Serialize};
 
 /// Actuator parameters, as in the twin's TOML `[actuator]` table.
@@ -28,6 +28,22 @@ pub struct ActuatorConfig {
 pub struct ResonantMode {
     pub freq_hz: f64,
     pub q: f64,
+    /// How the mode's input moves between samples (`input = "ramped"`; default `"held"`).
+    /// The diagnosis's nominal actuator roll-off is ramped, so that its lag shows below a
+    /// sample ([`InputHold`]).
+    #[serde(default, skip_serializing_if = "InputHold::is_held")]
+    pub input: InputHold,
+}
+
+impl ResonantMode {
+    /// A mode with its input held over each sample, as every configured mode is by default.
+    pub fn held(freq_hz: f64, q: f64) -> Self {
+        Self {
+            freq_hz,
+            q,
+            input: InputHold::Held,
+        }
+    }
 }
 
 /// Bouc–Wen model in its piezo form: `dh = α·g·dv − β·|dv|·h − γ·dv·|h|` (h in nm).
@@ -66,7 +82,7 @@ impl Actuator {
             modes: cfg
                 .modes
                 .iter()
-                .map(|m| SecondOrder::new(m.freq_hz, m.q, fs_hz))
+                .map(|m| SecondOrder::with_hold(m.freq_hz, m.q, fs_hz, m.input))
                 .collect(),
             creep: cfg.creep.map(|c| FirstOrder::new(c.tau_s, fs_hz)),
             cfg: cfg.clone(),

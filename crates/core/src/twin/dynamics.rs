@@ -1,34 +1,85 @@
 //! Exactly discretised linear building blocks, stepped once per sample.
 //!
-//! Each block is discretised with a zero-order hold on its input using the matrix
-//! exponential, so a resonance close to Nyquist is as accurate as a slow one and the twin
-//! needs no sub-steps (which is what keeps it far faster than real time).
+//! Each block is discretised with the matrix exponential, so a resonance close to Nyquist is
+//! as accurate as a slow one and the twin needs no sub-steps (which is what keeps it far
+//! faster than real time). The input is held over each sample (a zero-order hold) unless a
+//! [`SecondOrder`] is built [`InputHold::Ramped`]: then it ramps from the previous sample's
+//! value to this one's (a first-order hold), as a smooth drive does between its samples.
 
-use nalgebra::{Matrix2, Vector2};
+use nalgebra::{Matrix2, Matrix4, Vector2};
+use serde::{Deserialize, Serialize};
+
+/// How a block's input is taken to move between samples.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum InputHold {
+    /// Held at each sample's value until the next (zero-order hold). A mode much faster
+    /// than the sample rate then settles within the sample: its lag does not show at all.
+    #[default]
+    Held,
+    /// Ramped linearly from the previous sample's value (first-order hold). A lag `a1`
+    /// shorter than a sample shows as what it is, a phase `ω·a1` on every line, smoothly in
+    /// `a1` down to zero — which a fit needs to find it.
+    Ramped,
+}
+
+impl InputHold {
+    pub fn is_held(&self) -> bool {
+        *self == InputHold::Held
+    }
+}
 
 /// A second-order mode `ẍ + (ω0/Q)ẋ + ω0²x = ω0²·x_in`: unit static gain, resonance at
 /// `freq_hz` with quality factor `q`.
 #[derive(Debug, Clone)]
 pub struct SecondOrder {
     ad: Matrix2<f64>,
+    /// Input gain of this sample's value.
     bd: Vector2<f64>,
+    /// Input gain of the previous sample's value: `Some` for a ramped input only.
+    bd_previous: Option<Vector2<f64>>,
+    previous_in: f64,
     state: Vector2<f64>,
 }
 
 impl SecondOrder {
+    /// A mode whose input is held over each sample ([`InputHold::Held`]).
     pub fn new(freq_hz: f64, q: f64, fs_hz: f64) -> Self {
+        Self::with_hold(freq_hz, q, fs_hz, InputHold::Held)
+    }
+
+    pub fn with_hold(freq_hz: f64, q: f64, fs_hz: f64, hold: InputHold) -> Self {
         let w = 2.0 * std::f64::consts::PI * freq_hz;
         let a = Matrix2::new(0.0, 1.0, -w * w, -w / q);
         let b = Vector2::new(0.0, w * w);
         let t = 1.0 / fs_hz;
-        // exp([[A, B], [0, 0]]·T) gives Ad and Bd together (Van Loan).
+        // Van Loan: exp([[A, B], [0, 0]]·T) gives Ad and the held input's gain together.
         let mut m = nalgebra::Matrix3::<f64>::zeros();
         m.fixed_view_mut::<2, 2>(0, 0).copy_from(&(a * t));
         m.fixed_view_mut::<2, 1>(0, 2).copy_from(&(b * t));
         let e = m.exp();
+        let ad: Matrix2<f64> = e.fixed_view::<2, 2>(0, 0).into();
+        let held: Vector2<f64> = e.fixed_view::<2, 1>(0, 2).into();
+        let (bd, bd_previous) = match hold {
+            InputHold::Held => (held, None),
+            InputHold::Ramped => {
+                // The state (x, u, u̇) with u̇ constant over the sample obeys d/dt =
+                // [[A, B, 0], [0, 0, 1], [0, 0, 0]]; column 3 of its exponential over T is
+                // the gain of the input's slope. With u(s) = u_prev + (u − u_prev)·s/T that
+                // gain over T goes to u and comes off u_prev.
+                let mut m4 = Matrix4::<f64>::zeros();
+                m4.fixed_view_mut::<3, 3>(0, 0).copy_from(&m);
+                m4[(2, 3)] = t;
+                let slope: Vector2<f64> = m4.exp().fixed_view::<2, 1>(0, 3).into();
+                let this = slope / t;
+                (this, Some(held - this))
+            }
+        };
         Self {
-            ad: e.fixed_view::<2, 2>(0, 0).into(),
-            bd: e.fixed_view::<2, 1>(0, 2).into(),
+            ad,
+            bd,
+            bd_previous,
+            previous_in: 0.0,
             state: Vector2::zeros(),
         }
     }
@@ -36,11 +87,17 @@ impl SecondOrder {
     /// Starts at rest at the static response to `x_in`.
     pub fn settle(&mut self, x_in: f64) {
         self.state = Vector2::new(x_in, 0.0);
+        self.previous_in = x_in;
     }
 
-    /// Advances one sample with input `x_in` held over it; returns the new output.
+    /// Advances one sample to input `x_in` (held over it, or ramped to it from the previous
+    /// sample's); returns the new output.
     pub fn step(&mut self, x_in: f64) -> f64 {
-        self.state = self.ad * self.state + self.bd * x_in;
+        self.state = match self.bd_previous {
+            None => self.ad * self.state + self.bd * x_in,
+            Some(bp) => self.ad * self.state + self.bd * x_in + bp * self.previous_in,
+        };
+        self.previous_in = x_in;
         self.state[0]
     }
 
@@ -77,6 +134,50 @@ impl FirstOrder {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A ramped input shows a well-damped mode's lag `a1 = 1/(ω0·Q)` below a sample as the
+    /// phase `ω·a1` it is; a held input hides most of it.
+    #[test]
+    fn a_ramped_input_shows_a_sub_sample_lag() {
+        let fs = 4000.0;
+        let f = 500.0;
+        let w = 2.0 * std::f64::consts::PI * f;
+        for lag_samples in [0.02, 0.05, 0.2, 0.5] {
+            let q = 0.5;
+            let a1 = lag_samples / fs;
+            let f0 = 1.0 / (2.0 * std::f64::consts::PI * q * a1);
+            let mut m = SecondOrder::with_hold(f0, q, fs, InputHold::Ramped);
+            let mut held = SecondOrder::new(f0, q, fs);
+            let n = 4000;
+            let (mut c, mut s, mut ch, mut sh) = (0.0, 0.0, 0.0, 0.0);
+            for k in 0..n {
+                let t = k as f64 / fs;
+                let x = (w * t).sin();
+                let y = m.step(x);
+                let yh = held.step(x);
+                if k >= n / 2 {
+                    c += y * (w * t).cos();
+                    s += y * (w * t).sin();
+                    ch += yh * (w * t).cos();
+                    sh += yh * (w * t).sin();
+                }
+            }
+            // Exact phase of 1/(1 + a1·s + a2·s²) at ω.
+            let a2 = (q * a1).powi(2);
+            let expected = -(w * a1).atan2(1.0 - a2 * w * w);
+            let phase = c.atan2(s);
+            // The ramp is a chord: its slope is the derivative half a sample back, shrunk
+            // by sinc(ωT/2), so at ω·T = π/4 the phase is cos(π/8)·sinc(π/8) ≈ 0.90 of it.
+            let ratio = phase / expected;
+            assert!(
+                (0.85..1.02).contains(&ratio),
+                "lag {lag_samples}: phase {phase} vs {expected}"
+            );
+            if lag_samples <= 0.05 {
+                assert!(ch.atan2(sh).abs() < 0.01 * expected.abs(), "held shows it");
+            }
+        }
+    }
 
     /// Driven at resonance from rest, the steady amplitude is Q (unit static gain), and the
     /// free decay rings at the damped frequency f0·sqrt(1 − 1/4Q²).

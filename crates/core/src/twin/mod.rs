@@ -424,7 +424,7 @@ impl Twin {
             lever: cfg
                 .cantilever
                 .first_mode
-                .map(|m| SecondOrder::new(m.freq_hz, m.q, fs_hz)),
+                .map(|m| SecondOrder::with_hold(m.freq_hz, m.q, fs_hz, m.input)),
             detector: Detector::new(&cfg.detector, fs_hz, cfg.seed),
             sensor_rng: StdRng::seed_from_u64(cfg.seed ^ 0x5eed_4e16),
             cfg: cfg.clone(),
