@@ -79,7 +79,7 @@ use toml::{Table, Value};
 use super::fan::{self, Fan, Serial};
 use super::fit::{restarted, FD_STEP};
 use super::model::{
-    damping_shows, nominal_actuator_mode, ACTUATOR_LAG_START, ACTUATOR_Q_START, ZC_SCALE_NM,
+    frees_parameter, nominal_actuator_mode, ACTUATOR_LAG_START, ACTUATOR_Q_START, ZC_SCALE_NM,
 };
 use crate::estimate::lm::{solve_lazy, LmOptions};
 use crate::prony::{PronySeries, PronyTerm};
@@ -689,13 +689,9 @@ impl<'a> NominalRefit<'a> {
             ..Self::fit_options()
         };
         let (_, mid) = self.refit_from(&start, &halfway, rough);
-        let direct = self.refit_from(&start, target, Self::fit_options());
-        let continued = self.refit_from(&mid, target, Self::fit_options());
-        if continued.0 < direct.0 || direct.0.is_nan() {
-            continued.0
-        } else {
-            direct.0
-        }
+        let direct = self.refit_from(&start, target, Self::fit_options()).0;
+        let continued = self.refit_from(&mid, target, Self::fit_options()).0;
+        direct.min(continued)
     }
 
     /// The refit's solver settings: converged when a step gains less than 1 ppm of the cost.
@@ -714,11 +710,11 @@ impl<'a> NominalRefit<'a> {
     /// ([`restarted`]).
     fn refit_from(&self, p0: &[f64], target: &[f64], opts: LmOptions) -> (f64, Vec<f64>) {
         // (cost, where it ended); the damping held where the lag is too short for it to
-        // show, as the diagnosis's fits hold it (`model::damping_shows`).
+        // show, as the diagnosis's fits hold it (`model::frees_parameter`).
         let once = |p: &[f64]| -> Option<(f64, Vec<f64>)> {
             let lag = self.lag_index();
             let free: Vec<usize> = (0..p.len())
-                .filter(|&i| i != lag + 1 || damping_shows(p[lag]))
+                .filter(|&i| frees_parameter(i, lag, p, false))
                 .collect();
             let full = |x: &[f64]| {
                 let mut q = p.to_vec();

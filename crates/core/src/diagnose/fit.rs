@@ -6,7 +6,7 @@
 //! Jacobian costs one twin simulation per parameter.
 
 use super::fan::{self, Fan};
-use super::model::{damping_shows, Evaluation, ModelSpec, Problem, ACTUATOR_LAG};
+use super::model::{frees_parameter, Evaluation, ModelSpec, Problem, ACTUATOR_LAG};
 use crate::estimate::lm::{solve_lazy, Damping, LmOptions};
 use nalgebra::{DMatrix, DVector};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -205,7 +205,7 @@ pub fn restarted<T>(
 /// Fits the nonlinear parameters of `spec` from each start — every one, but for the nominal
 /// actuator's dynamics where `spec` holds them ([`ModelSpec::frees_actuator_dynamics`]) —
 /// and keeps the lowest χ²_train. The actuator's damping is held too where the start's lag is
-/// too short for it to show ([`damping_shows`]). A held parameter's standard deviation is 0.
+/// too short for it to show ([`frees_parameter`]). A held parameter's standard deviation is 0.
 pub fn fit_model(
     problem: &Problem,
     spec: &ModelSpec,
@@ -216,13 +216,7 @@ pub fn fit_model(
     let hold = !spec.frees_actuator_dynamics();
     let free_from = |start: &[f64]| -> Vec<usize> {
         (0..spec.n_nonlinear())
-            .filter(|&i| {
-                if hold {
-                    !(ACTUATOR_LAG..ACTUATOR_LAG + 2).contains(&i)
-                } else {
-                    i != ACTUATOR_LAG + 1 || damping_shows(start[ACTUATOR_LAG])
-                }
-            })
+            .filter(|&i| frees_parameter(i, ACTUATOR_LAG, start, hold))
             .collect()
     };
     // The starts are independent fits: a fan may run them side by side.

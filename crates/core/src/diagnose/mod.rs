@@ -550,8 +550,6 @@ pub fn diagnose_with(
         max_iterations: 60,
         max_step: 1.0,
     };
-    // The offline fitter's material is usually the right basin: other starts are tried only
-    // when the fit from it stays well above the floor.
     // Every nominal fit is restarted from where it stopped while that gains (`restarted`).
     let polished = |problem: &Problem, f: Fitted| -> Fitted {
         restarted(
@@ -569,6 +567,8 @@ pub fn diagnose_with(
             },
         )
     };
+    // The offline fitter's material is usually the right basin: other starts are tried only
+    // when the fit from it stays well above the floor.
     let fit_nominal = |problem: &Problem| -> Result<Fitted, DiagnoseError> {
         let first = fit_model(problem, &nominal, &starts[..1], nominal_opts, fan)
             .map(|f| polished(problem, f));
@@ -576,9 +576,8 @@ pub fn diagnose_with(
         Ok(match first {
             Some(f) if at_floor(&f) => f,
             first => {
-                let others = starts[1..].to_vec();
                 // `fit_model` keeps the best of the starts: only that one is polished.
-                let rest = fit_model(problem, &nominal, &others, nominal_opts, fan)
+                let rest = fit_model(problem, &nominal, &starts[1..], nominal_opts, fan)
                     .map(|f| polished(problem, f));
                 match (first, rest) {
                     (Some(a), Some(b)) if a.eval.chi2_train <= b.eval.chi2_train => a,
@@ -779,11 +778,7 @@ pub fn diagnose_with(
             None => now.push((e, f)),
         };
         for (e, f) in again.singles {
-            if let Some(i) = ex.screened.iter().position(|s| s.0 == e) {
-                if !ex.to_refit.contains(&i) {
-                    ex.to_refit.push(i);
-                }
-            }
+            mark_for_refit(&ex.screened, &mut ex.to_refit, e);
             keep_better(&mut ex.singles, (e, f));
         }
         for ef in again.plain_forms {
@@ -1168,13 +1163,18 @@ fn chosen_for_refit(
         &[]
     };
     for e in implied.into_iter().chain(look_alikes.iter().copied()) {
-        if let Some(i) = screened.iter().position(|s| s.0 == e) {
-            if !to_refit.contains(&i) {
-                to_refit.push(i);
-            }
-        }
+        mark_for_refit(screened, &mut to_refit, e);
     }
     to_refit
+}
+
+/// Adds `e`'s index in `screened` to `to_refit`, once (nothing when `e` was not screened).
+fn mark_for_refit(screened: &[(Effect, f64, Vec<f64>)], to_refit: &mut Vec<usize>, e: Effect) {
+    if let Some(i) = screened.iter().position(|s| s.0 == e) {
+        if !to_refit.contains(&i) {
+            to_refit.push(i);
+        }
+    }
 }
 
 fn summary(problem: &Problem, f: &Fitted) -> FitSummary {

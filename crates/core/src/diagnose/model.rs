@@ -359,11 +359,19 @@ pub(crate) fn nominal_actuator_mode(
 /// column is tiny but not zero, its Gauss–Newton step huge, and the solver — which scales a
 /// step down whole until its largest component fits — then moved nothing else: a drag's
 /// nominal fit stalled at 47 times the χ² it reaches with the damping held.
-pub(crate) const DAMPING_SHOWS_FROM_LAG: f64 = 0.25;
+const DAMPING_SHOWS_FROM_LAG: f64 = 0.25;
 
-/// Whether a fit starting at this lag (samples) frees the actuator's damping.
-pub(crate) fn damping_shows(lag_samples: f64) -> bool {
-    lag_samples >= DAMPING_SHOWS_FROM_LAG
+/// Whether a fit from `start` frees parameter `i`, where `lag` is the index of the actuator's
+/// lag (its damping follows): the dynamics are held where `hold_dynamics`
+/// ([`ModelSpec::frees_actuator_dynamics`]), and the damping where the start's lag is too
+/// short for it to show ([`DAMPING_SHOWS_FROM_LAG`]). The diagnosis's fits and the corpus's
+/// sizing refit, whose θ are laid out differently, free by this one rule.
+pub(crate) fn frees_parameter(i: usize, lag: usize, start: &[f64], hold_dynamics: bool) -> bool {
+    if hold_dynamics {
+        i != lag && i != lag + 1
+    } else {
+        i != lag + 1 || start[lag] >= DAMPING_SHOWS_FROM_LAG
+    }
 }
 
 /// The nominal actuator lag's start, in samples: small, but off zero, where the χ² is flat
@@ -492,7 +500,7 @@ impl ModelSpec {
     /// Number of nominal nonlinear parameters: ln g, contact point, ln J_inst, (ln Ji, ln τi)×n,
     /// then the actuator's lag and damping ([`ACTUATOR_LAG`]).
     pub fn n_nominal(&self) -> usize {
-        3 + 2 * NOMINAL_TERMS + 2
+        ACTUATOR_LAG + 2
     }
 
     pub fn n_nonlinear(&self) -> usize {
@@ -1144,14 +1152,18 @@ pub fn n_params(problem: &Problem, spec: &ModelSpec) -> usize {
 
 #[cfg(test)]
 mod tests {
+    use super::*;
+
     /// The nominal actuator's mode is the lag it is fitted as: `a1 = 1/(2π·f·Q)` is the lag in
     /// samples over the sample rate, `Q` stays within its bounds (reached at phase 0 and π),
-    /// and a lag of zero is the ideal actuator.
+    /// a lag of zero or a lead is the ideal actuator, and the mode's input is ramped.
     #[test]
     fn nominal_actuator_mode_is_its_lag() {
         let fs = 4000.0;
         let (lo, hi) = ACTUATOR_Q;
         assert!(nominal_actuator_mode(0.0, 1.0, fs).is_none());
+        assert!(nominal_actuator_mode(-0.3, 1.0, fs).is_none());
+        assert!(nominal_actuator_mode(f64::NAN, 1.0, fs).is_none());
         for (lag, phase) in [
             (0.3, 0.0),
             (1.0, ACTUATOR_Q_START),
@@ -1164,6 +1176,7 @@ mod tests {
                 "{lag}: {a1_samples}"
             );
             assert!(m.q >= lo - 1e-12 && m.q <= hi + 1e-12, "Q {}", m.q);
+            assert_eq!(m.input, InputHold::Ramped);
         }
         assert!((nominal_actuator_mode(1.0, 0.0, fs).unwrap().q - lo).abs() < 1e-12);
         assert!(
@@ -1176,8 +1189,6 @@ mod tests {
         );
         assert!((nominal_actuator_mode(1.0, ACTUATOR_Q_START, fs).unwrap().q - 0.8).abs() < 1e-12);
     }
-
-    use super::*;
 
     /// Each effect with forms is fitted in every one of them, and in every combination when
     /// a model has two; a pair keeps each effect's own form.
