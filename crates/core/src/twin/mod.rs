@@ -36,6 +36,10 @@ use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
 
+/// The longest detector delay a twin accepts, s: a channel delays by microseconds to
+/// milliseconds, and a record is seconds long.
+pub const MAX_DETECTOR_DELAY_S: f64 = 10.0;
+
 /// The whole twin, as read from a `[twin]`-style TOML document.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TwinConfig {
@@ -330,6 +334,17 @@ impl TwinConfig {
                     message: format!("must be ≥ 0 (got {v})"),
                 });
             }
+        }
+        // The delay line holds delay·fs samples: an absurd delay (a fit's runaway log-delay
+        // reached 1e25 s) would ask for more memory than exists, or wrap the line's length.
+        if d.delay_s.is_finite() && d.delay_s > MAX_DETECTOR_DELAY_S {
+            issues.push(ConfigIssue {
+                path: p("detector.delay_s"),
+                message: format!(
+                    "must be at most {MAX_DETECTOR_DELAY_S} s (a channel delays by µs to ms; got {} s)",
+                    d.delay_s
+                ),
+            });
         }
         issues
     }

@@ -281,3 +281,21 @@ fn base_velocity_is_second_order() {
     let v = base_velocity(z(t - 2.0 / fs), z(t - 1.0 / fs), z(t), fs);
     assert!((v - (5.0 + 14.0 * t)).abs() < 1e-9, "{v}");
 }
+
+/// A detector delay is validated before a twin allocates its delay line: a huge one is a
+/// named configuration error, not an allocation failure or a wrapped length (a fit's
+/// runaway log-delay once reached 1e25 s and panicked the simulation).
+#[test]
+fn an_absurd_detector_delay_is_an_error() {
+    let mut cfg = base_config();
+    cfg.detector.delay_s = 2e-3;
+    assert!(cfg.validate("").is_empty());
+    for bad in [11.0, 1e25, f64::INFINITY, f64::NAN, -1e-3] {
+        cfg.detector.delay_s = bad;
+        let issues = cfg.validate("twin");
+        assert!(
+            issues.iter().any(|i| i.path == "twin.detector.delay_s"),
+            "{bad}: {issues:?}"
+        );
+    }
+}
