@@ -33,6 +33,12 @@ pub struct ResonantMode {
     /// sample ([`InputHold`]).
     #[serde(default, skip_serializing_if = "InputHold::is_held")]
     pub input: InputHold,
+    /// A mode of part of the frame or stage rather than of the whole scanner: the motion
+    /// passes through it above the resonance as below, and is amplified by this factor at
+    /// it — `(s² + (ω0·g/Q)s + ω0²)/(s² + (ω0/Q)s + ω0²)` with `g = peak_gain`. Absent: the
+    /// scanner's own mode, which rolls off above the resonance.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub peak_gain: Option<f64>,
 }
 
 impl ResonantMode {
@@ -42,6 +48,15 @@ impl ResonantMode {
             freq_hz,
             q,
             input: InputHold::Held,
+            peak_gain: None,
+        }
+    }
+
+    /// A held mode that passes the motion through above the resonance, `peak_gain` at it.
+    pub fn peaking(freq_hz: f64, q: f64, peak_gain: f64) -> Self {
+        Self {
+            peak_gain: Some(peak_gain),
+            ..Self::held(freq_hz, q)
         }
     }
 }
@@ -82,7 +97,13 @@ impl Actuator {
             modes: cfg
                 .modes
                 .iter()
-                .map(|m| SecondOrder::with_hold(m.freq_hz, m.q, fs_hz, m.input))
+                .map(|m| {
+                    let mode = SecondOrder::with_hold(m.freq_hz, m.q, fs_hz, m.input);
+                    match m.peak_gain {
+                        Some(g) => mode.peaking(g),
+                        None => mode,
+                    }
+                })
                 .collect(),
             creep: cfg.creep.map(|c| FirstOrder::new(c.tau_s, fs_hz)),
             cfg: cfg.clone(),

@@ -40,6 +40,10 @@ pub struct SecondOrder {
     bd_previous: Option<Vector2<f64>>,
     previous_in: f64,
     state: Vector2<f64>,
+    /// `1/(ω0·Q)`, s.
+    damping_time_s: f64,
+    /// For a peaking mode ([`Self::peaking`]): the gain of the velocity added to the input.
+    velocity_gain: Option<f64>,
 }
 
 impl SecondOrder {
@@ -81,7 +85,18 @@ impl SecondOrder {
             bd_previous,
             previous_in: 0.0,
             state: Vector2::zeros(),
+            damping_time_s: 1.0 / (w * q),
+            velocity_gain: None,
         }
+    }
+
+    /// The same mode as one that passes its input through and peaks by `peak_gain` at the
+    /// resonance: `(s² + (ω0·g/Q)s + ω0²)/(s² + (ω0/Q)s + ω0²) = 1 + (g − 1)(ω0/Q)·s/(…)`,
+    /// which is the input plus `(g − 1)/(ω0·Q)` times the mode's velocity `ẋ` (ẋ/x_in is
+    /// `ω0²·s/(…)`).
+    pub fn peaking(mut self, peak_gain: f64) -> Self {
+        self.velocity_gain = Some((peak_gain - 1.0) * self.damping_time_s);
+        self
     }
 
     /// Starts at rest at the static response to `x_in`.
@@ -98,11 +113,14 @@ impl SecondOrder {
             Some(bp) => self.ad * self.state + self.bd * x_in + bp * self.previous_in,
         };
         self.previous_in = x_in;
-        self.state[0]
+        self.output()
     }
 
     pub fn output(&self) -> f64 {
-        self.state[0]
+        match self.velocity_gain {
+            Some(c) => self.previous_in + c * self.state[1],
+            None => self.state[0],
+        }
     }
 }
 
@@ -220,6 +238,40 @@ mod tests {
             (ratio - expected).abs() < 0.01,
             "decay {ratio} vs {expected}"
         );
+    }
+
+    /// A peaking mode passes a line far below and far above its resonance unchanged and
+    /// multiplies one at the resonance by its peak gain, in phase.
+    #[test]
+    fn a_peaking_mode_passes_through_and_peaks_by_its_gain() {
+        let (fs, f0, q, g) = (20_000.0, 100.0, 20.0, 3.0);
+        // Amplitude and phase of a settled line at `f` (the last 4 s of 6 s, whole periods).
+        let line = |f: f64| {
+            let mut m = SecondOrder::new(f0, q, fs).peaking(g);
+            m.settle(0.0);
+            let w = 2.0 * std::f64::consts::PI * f;
+            let n = (6.0 * fs) as usize;
+            let (mut c, mut s) = (0.0, 0.0);
+            for k in 0..n {
+                // The input is held over each sample: sample it at the step's middle.
+                let t = (k as f64 - 0.5) / fs;
+                let y = m.step((w * t).sin());
+                if k >= n / 3 {
+                    let t = k as f64 / fs;
+                    c += y * (w * t).cos();
+                    s += y * (w * t).sin();
+                }
+            }
+            let m = (n - n / 3) as f64 / 2.0;
+            ((c * c + s * s).sqrt() / m, c.atan2(s))
+        };
+        let (at, phase) = line(f0);
+        assert!((at - g).abs() < 0.02 * g, "gain at resonance {at}");
+        assert!(phase.abs() < 0.05, "phase at resonance {phase}");
+        for f in [f0 / 20.0, 20.0 * f0] {
+            let (a, _) = line(f);
+            assert!((a - 1.0).abs() < 0.02, "gain at {f} Hz: {a}");
+        }
     }
 
     #[test]
