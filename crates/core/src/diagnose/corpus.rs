@@ -95,6 +95,12 @@ use std::sync::Mutex;
 
 /// Sample rate of the corpus recordings, Hz.
 pub const FS_HZ: f64 = 4000.0;
+
+/// Prony terms of the corpus's nominal material: its cases are diagnosed against a two-term
+/// nominal twin ([`super::DiagnoseOptions::nominal_terms`]), and `missing_relaxation` is a
+/// third term. Written to disk (`diagnose-bench --write`), a case is diagnosed the same way
+/// with `viscoprobe diagnose --prony-terms 2`.
+pub const MATERIAL_TERMS: usize = 2;
 /// Samples per recording (5 s at [`FS_HZ`]).
 pub const N_SAMPLES: usize = 20_000;
 /// Periods of the in-contact multisine.

@@ -6,7 +6,7 @@
 //! Jacobian costs one twin simulation per parameter.
 
 use super::fan::{self, Fan};
-use super::model::{frees_parameter, Evaluation, ModelSpec, Problem, ACTUATOR_LAG};
+use super::model::{frees_parameter, Evaluation, ModelSpec, Problem};
 use crate::estimate::lm::{solve_lazy, Damping, LmOptions};
 use nalgebra::{DMatrix, DVector};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -216,7 +216,7 @@ pub fn fit_model(
     let hold = !spec.frees_actuator_dynamics();
     let free_from = |start: &[f64]| -> Vec<usize> {
         (0..spec.n_nonlinear())
-            .filter(|&i| frees_parameter(i, ACTUATOR_LAG, start, hold))
+            .filter(|&i| frees_parameter(i, spec.actuator_lag(), start, hold))
             .collect()
     };
     // The starts are independent fits: a fan may run them side by side.
@@ -344,7 +344,7 @@ pub fn orthonormal_basis(j: &DMatrix<f64>) -> DMatrix<f64> {
 
 #[cfg(test)]
 mod tests {
-    use super::super::corpus::{nominal_twin, protocol_drive, simulate, FS_HZ};
+    use super::super::corpus::{nominal_twin, protocol_drive, simulate, FS_HZ, MATERIAL_TERMS};
     use super::super::fan::{tests::Reversed, Serial};
     use super::super::model::{Effect, ModelSpec, Problem};
     use super::*;
@@ -381,6 +381,7 @@ mod tests {
         let mut material = twin.sample.material.clone();
         material.j0_per_pa *= 1.1;
         let th0 = problem.nominal_theta(
+            MATERIAL_TERMS,
             twin.actuator.gain_nm_per_v * 1.03,
             twin.sample.contact_point_nm + 2.0,
             &material,
@@ -391,7 +392,8 @@ mod tests {
     /// Fits with every parameter free, and screens from the result, through `fan`.
     fn run(fan: &dyn Fan) -> (Fitted, (f64, Vec<f64>), usize) {
         let (problem, th0) = problem();
-        let spec = ModelSpec::with(&[Effect::ChannelDelay, Effect::ThermalDrift]);
+        let nominal_spec = ModelSpec::nominal(MATERIAL_TERMS);
+        let spec = nominal_spec.with(&[Effect::ChannelDelay, Effect::ThermalDrift]);
         let mut start = th0.clone();
         start.push((1.0 / FS_HZ).ln());
         let opts = FitOptions {
@@ -399,13 +401,13 @@ mod tests {
             max_step: 1.0,
         };
         let fitted = fit_model(&problem, &spec, &[start], opts, fan).expect("fit");
-        let nominal = fit_model(&problem, &ModelSpec::nominal(), &[th0], opts, fan).expect("fit");
+        let nominal = fit_model(&problem, &nominal_spec, &[th0], opts, fan).expect("fit");
         let q = orthonormal_basis(&nominal.jacobian);
         let mut st = nominal.theta.clone();
         st.push((0.5 / FS_HZ).ln());
         let screened = screen(
             &problem,
-            &ModelSpec::with(&[Effect::ChannelDelay]),
+            &nominal_spec.with(&[Effect::ChannelDelay]),
             &[st],
             &q,
             fan,

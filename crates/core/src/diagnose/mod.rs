@@ -4,8 +4,9 @@
 //! [`diagnose`] takes a [`Recording`] and returns a [`Diagnosis`]:
 //!
 //! 1. **Nominal twin.** The twin's nominal model — actuator gain, Hertz (or Sneddon) contact
-//!    with the sidecar's tip and calibration, a two-term Prony material, a contact point and a
-//!    deflection offset — is fitted to the recorded deflection by playing the recorded drive
+//!    with the sidecar's tip and calibration, a Prony material of as many terms as the
+//!    simulation it stands for (three, the paper's, unless told: [`DiagnoseOptions`]), the
+//!    actuator's lag, a contact point and a deflection offset — is fitted to the recorded deflection by playing the recorded drive
 //!    through the twin ([`model`], [`fit`]). The noise floor is measured where the lever is
 //!    free ([`noise`]); every residual is whitened by it, so sums of squares are χ².
 //! 2. **Locate.** The whitened residual is tested phase by phase (approach, contact onset,
@@ -44,7 +45,14 @@ use fit::{
     fit_model, orthonormal_basis, restarted, scan_step_parameters, screen, FitOptions, Fitted,
 };
 use locate::{Location, Phase};
-use model::{DriftForm, Effect, ModelSpec, Problem, TipForm, NOMINAL_TERMS};
+use model::{
+    DriftForm, Effect, ModelSpec, Problem, ResonanceForm, TipForm, DEFAULT_NOMINAL_TERMS,
+    MAX_NOMINAL_TERMS,
+};
+
+/// Where a peaking resonance's gain starts: a peak of twice the motion, between a mode
+/// barely seen and one that dominates its band.
+const PEAKING_START_GAIN: f64 = 2.0;
 use noise::NoiseModel;
 use serde::Serialize;
 use thiserror::Error;
@@ -78,6 +86,8 @@ pub enum DiagnoseError {
     TooShort(usize),
     #[error("the nominal twin could not be fitted to this recording (no start gave a finite simulation)")]
     NominalFailed,
+    #[error("the nominal material takes 1 to {MAX_NOMINAL_TERMS} Prony terms, not {0}")]
+    NominalTerms(usize),
 }
 
 /// The diagnosis in one word.
@@ -157,6 +167,10 @@ pub struct DiagnoseOptions {
     /// Try pairs of effects.
     pub pairs: bool,
     pub thresholds: Thresholds,
+    /// Prony terms of the nominal material: as many as the simulation that the recording is
+    /// compared with has ([`DEFAULT_NOMINAL_TERMS`], the paper's three, unless told).
+    /// A retardation time beyond them is `missing_relaxation`.
+    pub nominal_terms: usize,
 }
 
 impl Default for DiagnoseOptions {
@@ -165,6 +179,7 @@ impl Default for DiagnoseOptions {
             full_refits: 4,
             pairs: true,
             thresholds: Thresholds::default(),
+            nominal_terms: DEFAULT_NOMINAL_TERMS,
         }
     }
 }
@@ -184,7 +199,7 @@ pub struct FitSummary {
 }
 
 /// The nominal actuator's linear dynamics, `1/(1 + a1·s + a2·s²)` (see
-/// [`model::ACTUATOR_LAG`]).
+/// [`ModelSpec::actuator_lag`]).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct ActuatorDynamics {
     /// `a1`, s: how far the actuator lags a slow drive (0: ideal).
@@ -387,6 +402,7 @@ fn find_contact(y: &[f64]) -> Result<(usize, f64, f64), DiagnoseError> {
 /// A first material from the recording's (u, y) by the offline fitter, or a static Hertz
 /// estimate when that fails.
 fn first_material(
+    terms: usize,
     offline: Option<&PronySeries>,
     rec: &Recording,
     gain: f64,
@@ -394,7 +410,7 @@ fn first_material(
     contact: usize,
     base: f64,
 ) -> PronySeries {
-    if let Some(m) = offline.filter(|m| m.is_physical() && m.order() == NOMINAL_TERMS) {
+    if let Some(m) = offline.filter(|m| m.is_physical() && m.order() == terms) {
         return m.clone();
     }
     let k = rec.meta.cantilever.spring_constant_n_per_m;
@@ -408,19 +424,32 @@ fn first_material(
     let j = contact_model.y_from_indentation(h_m)
         / contact_model.u_from_force(k * d_nm * 1e-9).max(1e-300);
     let j = if j.is_finite() && j > 0.0 { j } else { 1e-4 };
-    PronySeries::new(
-        j,
-        vec![
-            crate::prony::PronyTerm {
-                j_per_pa: 0.25 * j,
-                tau_s: 0.01,
-            },
-            crate::prony::PronyTerm {
-                j_per_pa: 0.25 * j,
-                tau_s: 0.3,
-            },
-        ],
-    )
+    let lo = 0.01 * 10f64.powi(2 - terms as i32);
+    spread_material(j, terms, (lo, 0.3), |_| 0.5 / terms as f64)
+}
+
+/// A material of relaxed compliance `j` with `n` terms, the i-th holding `fraction(i)·j`,
+/// their retardation times log-spaced from `taus.0` to `taus.1` (a single term at the
+/// middle).
+fn spread_material(
+    j: f64,
+    n: usize,
+    (lo, hi): (f64, f64),
+    fraction: impl Fn(usize) -> f64,
+) -> PronySeries {
+    let tau = |i: usize| match i {
+        _ if n == 1 => (lo * hi).sqrt(),
+        0 => lo,
+        _ if i == n - 1 => hi,
+        _ => lo * (hi / lo).powf(i as f64 / (n - 1) as f64),
+    };
+    let terms = (0..n)
+        .map(|i| crate::prony::PronyTerm {
+            j_per_pa: fraction(i) * j,
+            tau_s: tau(i),
+        })
+        .collect();
+    PronySeries::new(j, terms)
 }
 
 /// Diagnoses a recording, one simulation after the other.
@@ -439,6 +468,11 @@ pub fn diagnose_with(
     if n < 1000 {
         return Err(DiagnoseError::TooShort(n));
     }
+    let terms = opts.nominal_terms;
+    if !(1..=MAX_NOMINAL_TERMS).contains(&terms) {
+        return Err(DiagnoseError::NominalTerms(terms));
+    }
+    let nominal = ModelSpec::nominal(terms);
     let fs = rec.sample_rate_hz;
     // Where the model's base position comes from, in one place. Behind a commanded
     // displacement, the actuator's own position sensor, when the recording has one, is where
@@ -465,7 +499,7 @@ pub fn diagnose_with(
     // forces make the force creep out of the noise (it treats the contact as a model
     // parameter), the simple threshold above is the fallback; its material is the nominal
     // twin's first start.
-    let offline = analysis::fit_recording_with(rec, analysis::Terms::Fixed(NOMINAL_TERMS), false);
+    let offline = analysis::fit_recording_with(rec, analysis::Terms::Fixed(terms), false);
     let contact = match &offline {
         Ok(f) => Some(f.prepared.contact_index),
         Err(_) => analysis::prepare(rec).ok().map(|p| p.contact_index),
@@ -519,6 +553,7 @@ pub fn diagnose_with(
 
     // 1. Nominal twin.
     let material0 = first_material(
+        terms,
         offline.as_ref().ok().map(|f| &f.estimate.model),
         rec,
         gain0,
@@ -527,24 +562,15 @@ pub fn diagnose_with(
         base,
     );
     let zc0 = gain0 * drive[contact];
-    let nominal = ModelSpec::nominal();
-    let mut starts = vec![problem.nominal_theta(gain0, zc0, &material0)];
+    let mut starts = vec![problem.nominal_theta(terms, gain0, zc0, &material0)];
+    // Two more starts: retardation times spread from a few samples, and from slower, each
+    // range a decade wider per term beyond two.
     let j = material0.j0_per_pa;
-    for (t1, t2) in [(5.0 / fs, 0.05), (0.02, 0.5)] {
-        let m = PronySeries::new(
-            j,
-            vec![
-                crate::prony::PronyTerm {
-                    j_per_pa: 0.2 * j,
-                    tau_s: t1,
-                },
-                crate::prony::PronyTerm {
-                    j_per_pa: 0.3 * j,
-                    tau_s: t2,
-                },
-            ],
-        );
-        starts.push(problem.nominal_theta(gain0, zc0, &m));
+    let wider = 10f64.powi(terms as i32 - 2);
+    let share = |i: usize| if i == 0 { 0.2 } else { 0.3 } * 2.0 / terms as f64;
+    for taus in [(5.0 / fs, 0.05 * wider), (0.02 / wider, 0.5)] {
+        let m = spread_material(j, terms, taus, share);
+        starts.push(problem.nominal_theta(terms, gain0, zc0, &m));
     }
     let nominal_opts = FitOptions {
         max_iterations: 60,
@@ -617,7 +643,7 @@ pub fn diagnose_with(
     let n_ho = problem.held.len() as f64;
     // The train χ² drop a single effect must beat: its BIC penalty and the margin.
     let penalty_of = |e: Effect| {
-        let k = (model::n_params(&problem, &ModelSpec::with(&[e]))
+        let k = (model::n_params(&problem, &nominal.with(&[e]))
             - model::n_params(&problem, &nominal))
         .max(1) as f64;
         k * n_tr.ln() + th.train_margin
@@ -649,7 +675,7 @@ pub fn diagnose_with(
             .collect();
         let mut screened: Vec<(Effect, f64, Vec<f64>)> = fan::map(fan, candidates.len(), |k| {
             let e = candidates[k];
-            let spec = ModelSpec::with(&[e]);
+            let spec = nominal.with(&[e]);
             let st = ctx.starts(&problem, nom, e, fan);
             screen(&problem, &spec, &st, &q, fan).map(|(c, th)| (e, nom.eval.chi2_train - c, th))
         })
@@ -676,7 +702,7 @@ pub fn diagnose_with(
         let mut plain_forms: Vec<(Effect, Fitted)> = vec![];
         for (e, best, plain) in fan::map(fan, to_refit.len(), |j| {
             let (e, _, th_s) = &screened[to_refit[j]];
-            let spec = ModelSpec::with(&[*e]);
+            let spec = nominal.with(&[*e]);
             let mut st = vec![th_s.clone()];
             st.extend(ctx.starts(&problem, nom, *e, fan).into_iter().take(1));
             if distorted {
@@ -725,12 +751,20 @@ pub fn diagnose_with(
         let mut by_chi2: Vec<&Fitted> = singles.iter().map(|(_, f)| f).collect();
         by_chi2.sort_by(|a, b| a.eval.chi2_train.total_cmp(&b.eval.chi2_train));
         let n_nom = nominal.n_nominal();
-        let from: Vec<Vec<f64>> = by_chi2
+        let mut from: Vec<Vec<f64>> = by_chi2
             .iter()
             .take(NOMINAL_REPOLISH)
             .filter(|f| f.eval.chi2_train < nom.eval.chi2_train)
             .map(|f| f.theta[..n_nom].to_vec())
             .collect();
+        // A material of one more term that fits better says the nominal fit missed a basin
+        // of its own order: two of its terms had merged, or one sat where no data are. Each
+        // material that keeps all but one of those terms starts the nominal fit too.
+        for (e, f) in singles {
+            if *e == Effect::MissingRelaxation && f.eval.chi2_train < nom.eval.chi2_train {
+                from.extend(one_term_fewer(&nominal, f));
+            }
+        }
         // The best of the starts is polished, not each (`fit_model` keeps the best).
         if from.is_empty() {
             return None;
@@ -1002,13 +1036,12 @@ pub fn diagnose_with(
 /// frequency, a delay of many samples.
 fn best_on_grid(
     problem: &Problem,
-    effect: Effect,
+    spec: &ModelSpec,
     points: &[Vec<f64>],
     fan: &dyn Fan,
 ) -> Option<Vec<f64>> {
-    let spec = ModelSpec::with(&[effect]);
     let chi2 = fan::map(fan, points.len(), |i| {
-        problem.evaluate(&spec, &points[i]).map(|e| e.chi2_train)
+        problem.evaluate(spec, &points[i]).map(|e| e.chi2_train)
     });
     chi2.into_iter()
         .zip(points)
@@ -1184,7 +1217,7 @@ fn summary(problem: &Problem, f: &Fitted) -> FitSummary {
         held_out_chi2_per_sample: f.eval.chi2_held / problem.held.len() as f64,
         train_chi2_per_sample: f.eval.chi2_train / problem.train.len() as f64,
         material: problem.material(&f.spec, &f.theta),
-        actuator: problem.actuator_dynamics(&f.theta),
+        actuator: problem.actuator_dynamics(&f.spec, &f.theta),
     }
 }
 
@@ -1204,6 +1237,35 @@ fn params_of(problem: &Problem, f: &Fitted, e: Effect) -> Vec<Param> {
             unit,
             value,
             ci95,
+        })
+        .collect()
+}
+
+/// The nominal θs of `f`, a fit with `missing_relaxation`'s extra term, that keep all but one
+/// of its `n + 1` terms (the instantaneous compliance, contact, gain and actuator as fitted).
+fn one_term_fewer(nominal: &ModelSpec, f: &Fitted) -> Vec<Vec<f64>> {
+    let n = nominal.terms;
+    let Some(o) = f.spec.offset_of(Effect::MissingRelaxation) else {
+        return vec![];
+    };
+    let terms: Vec<(f64, f64)> = (0..n)
+        .map(|i| (f.theta[3 + i], f.theta[3 + n + i]))
+        .chain([(f.theta[o], f.theta[o + 1])])
+        .collect();
+    (0..n)
+        .map(|drop| {
+            let kept: Vec<(f64, f64)> = terms
+                .iter()
+                .enumerate()
+                .filter(|&(i, _)| i != drop)
+                .map(|(_, &t)| t)
+                .collect();
+            let mut th = f.theta[..nominal.n_nominal()].to_vec();
+            for (i, (ln_j, ln_tau)) in kept.into_iter().enumerate() {
+                th[3 + i] = ln_j;
+                th[3 + n + i] = ln_tau;
+            }
+            th
         })
         .collect()
 }
@@ -1361,7 +1423,7 @@ impl StartContext {
     /// nominal compliances rescaled to it). A `th` that is not of the plain form is returned
     /// as it is.
     fn extend(&self, problem: &Problem, spec: &ModelSpec, th: &[f64]) -> Vec<f64> {
-        let plain = ModelSpec::with(&spec.effects);
+        let plain = spec.plain();
         if th.len() != plain.n_nonlinear() {
             return th.to_vec();
         }
@@ -1377,13 +1439,16 @@ impl StartContext {
                     t.extend([length.ln(), stiffness.ln()]);
                 }
                 Effect::ThermalDrift if spec.drift == DriftForm::Surface => t.extend([0.0, 0.0]),
+                Effect::InstrumentResonance if spec.resonance == ResonanceForm::Peaking => {
+                    t.push(PEAKING_START_GAIN.ln())
+                }
                 Effect::TipGeometry if spec.tip == TipForm::Blunted => {
                     // From the nominal fit, its compliances rescaled to the same force at the
                     // deepest indentation, blunted at a third of that depth.
                     let depth = 0.3 * self.max_indentation_nm;
                     let tip_alone = ModelSpec {
                         tip: TipForm::Blunted,
-                        ..ModelSpec::with(&[Effect::TipGeometry])
+                        ..ModelSpec::nominal(spec.terms).with(&[Effect::TipGeometry])
                     };
                     let mut at = self.nominal_theta.clone();
                     at.push(depth.ln());
@@ -1406,14 +1471,16 @@ impl StartContext {
         spec: &ModelSpec,
         th: &[f64],
     ) -> Vec<f64> {
-        let c_old = problem.twin_config(&ModelSpec::nominal(), base).contact();
+        let c_old = problem
+            .twin_config(&ModelSpec::nominal(spec.terms), base)
+            .contact();
         let c_new = problem.twin_config(spec, th).contact();
         let h = self.max_indentation_nm * 1e-9;
         let s = c_new.y_from_indentation(h) / c_old.y_from_indentation(h) * c_old.force_factor()
             / c_new.force_factor();
         let mut t = base.to_vec();
         if s.is_finite() && s > 0.0 {
-            for v in t[2..3 + NOMINAL_TERMS].iter_mut() {
+            for v in t[2..3 + spec.terms].iter_mut() {
                 *v += s.ln();
             }
         }
@@ -1445,7 +1512,7 @@ impl StartContext {
                 // range and of each gap between the nominal terms; but none within a factor
                 // 2 of a nominal term, which a third term there would only split (a large
                 // slow term the nominal fit put halfway is missing in the gap it left).
-                let nominal = problem.material(&ModelSpec::nominal(), &base);
+                let nominal = problem.material(&nom.spec, &base);
                 let mut taus: Vec<f64> = nominal.terms.iter().map(|t| t.tau_s).collect();
                 taus.sort_by(f64::total_cmp);
                 let (fast, slow) = (3.0 / fs, 0.3 * self.record_s);
@@ -1465,18 +1532,48 @@ impl StartContext {
                 // start an octave away the fit bends the material instead. A coarse grid of
                 // modes up to just below Nyquist, each one simulation with everything else
                 // held, puts the fit in the right basin for the price of 30 simulations.
+                // The grid is searched in both forms (`ResonanceForm`): a frame mode inside
+                // the band has its basin where a roll-off has none. Its best frequency and Q
+                // start both forms' fits (the peaking one at `PEAKING_START_GAIN`).
                 let (f_lo, f_hi) = (50.0f64, 0.475 * fs);
                 let n = 15;
-                let points: Vec<Vec<f64>> = (0..n)
-                    .flat_map(|i| {
-                        let f = f_lo * (f_hi / f_lo).powf(i as f64 / (n - 1) as f64);
-                        [1.5f64, 5.0].map(|q| with(&[f.ln(), q.ln()]))
-                    })
-                    .collect();
+                let grid = |qs: &[f64], extra: &[f64]| -> Vec<Vec<f64>> {
+                    (0..n)
+                        .flat_map(|i| {
+                            let f = f_lo * (f_hi / f_lo).powf(i as f64 / (n - 1) as f64);
+                            qs.iter().map(move |&q: &f64| (f, q))
+                        })
+                        .map(|(f, q)| {
+                            let mut t = with(&[f.ln(), q.ln()]);
+                            t.extend_from_slice(extra);
+                            t
+                        })
+                        .collect()
+                };
+                let roll_off = nom.spec.with(&[Effect::InstrumentResonance]);
+                let peaking = ModelSpec {
+                    resonance: ResonanceForm::Peaking,
+                    ..roll_off.clone()
+                };
                 let mut out: Vec<Vec<f64>> =
-                    best_on_grid(problem, Effect::InstrumentResonance, &points, fan)
+                    best_on_grid(problem, &roll_off, &grid(&[1.5, 5.0], &[]), fan)
                         .into_iter()
                         .collect();
+                // A frame mode is often sharp (Q of tens) and shows only near its frequency:
+                // a sharper grid, and a finer one across the octave band where the nominal
+                // residual stands out most.
+                let g0 = PEAKING_START_GAIN.ln();
+                let mut peak_grid = grid(&[1.5, 5.0, 20.0], &[g0]);
+                peak_grid.extend((0..8).map(|i| {
+                    let f = self.resonance_guess_hz * 2f64.powf((i as f64 - 3.5) / 7.0);
+                    with(&[f.ln(), 20f64.ln(), g0])
+                }));
+                if let Some(mut t) = best_on_grid(problem, &peaking, &peak_grid, fan) {
+                    t.pop();
+                    if !out.contains(&t) {
+                        out.push(t);
+                    }
+                }
                 out.extend(
                     [self.resonance_guess_hz, fs / 4.0]
                         .iter()
@@ -1503,7 +1600,7 @@ impl StartContext {
                     .collect();
                 // The grid's best first: a refit takes only the first start of a set.
                 let mut out: Vec<Vec<f64>> =
-                    best_on_grid(problem, Effect::ChannelDelay, &points, fan)
+                    best_on_grid(problem, &nom.spec.with(&[e]), &points, fan)
                         .into_iter()
                         .collect();
                 for d in [0.5 / fs, 2.0 / fs] {
@@ -1514,16 +1611,17 @@ impl StartContext {
                 }
                 // The nominal actuator's lag has taken up what of the delay it could: the
                 // delay then starts with that lag handed over, the actuator ideal.
-                let lag = base[model::ACTUATOR_LAG];
+                let lag_at = nom.spec.actuator_lag();
+                let lag = base[lag_at];
                 if lag > 0.0 {
                     let mut t = with(&[(lag / fs).ln()]);
-                    t[model::ACTUATOR_LAG] = 0.0;
+                    t[lag_at] = 0.0;
                     out.push(t);
                 }
                 out
             }
             Effect::TipGeometry => {
-                let spec_new = ModelSpec::with(&[Effect::TipGeometry]);
+                let spec_new = nom.spec.with(&[Effect::TipGeometry]);
                 vec![self.same_force(problem, &base, &spec_new, &base)]
             }
             // Linear effects: no nonlinear parameters.
@@ -1541,14 +1639,18 @@ mod tests {
     use crate::twin::detector::Mains;
     use crate::twin::TwinConfig;
 
+    /// The options a corpus-like twin is diagnosed with: its two-term nominal material.
+    fn corpus_options() -> DiagnoseOptions {
+        DiagnoseOptions {
+            nominal_terms: super::corpus::MATERIAL_TERMS,
+            ..DiagnoseOptions::default()
+        }
+    }
+
     /// The diagnosis of `twin` recorded over the corpus protocol at `fs`.
     fn diagnosed(twin: &TwinConfig, fs: f64) -> Diagnosis {
         let (drive_v, _) = protocol_drive(fs);
-        diagnose(
-            &simulate(twin, &drive_v, fs, None),
-            &DiagnoseOptions::default(),
-        )
-        .unwrap()
+        diagnose(&simulate(twin, &drive_v, fs, None), &corpus_options()).unwrap()
     }
 
     /// 50 Hz pick-up of `line` V with a third harmonic of `third` V.
@@ -1581,7 +1683,7 @@ mod tests {
         nm.drive = Drive::Nanometres(drive_v.iter().map(|v| v * gain).collect());
         let (_, truth) = simulate_with_truth(&twin, &drive_v, fs);
         volts.measured_height_nm = Some(truth.iter().map(|s| s.base_nm).collect());
-        let opts = DiagnoseOptions::default();
+        let opts = corpus_options();
         let dv = diagnose(&volts, &opts).unwrap();
         let dn = diagnose(&nm, &opts).unwrap();
         assert_eq!(dv.base_position, BasePosition::Drive);
@@ -1693,7 +1795,7 @@ mod tests {
         let record_s = drive_v.len() as f64 / fs;
         twin.detector.drift_v_per_s = 1.5 * twin.detector.white_noise_v / record_s;
         let rec = simulate(&twin, &drive_v, fs, None);
-        let d = diagnose(&rec, &DiagnoseOptions::default()).unwrap();
+        let d = diagnose(&rec, &corpus_options()).unwrap();
         assert_eq!(d.effects[0].id, "thermal_drift", "{:?}", d.effects[0]);
         let clean = simulate(&noise_free(&twin), &drive_v, fs, None).deflection_v;
         let rms = |a: &[f64], b: &[f64]| {

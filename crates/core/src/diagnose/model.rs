@@ -180,6 +180,8 @@ impl Effect {
 /// Which model: the effects switched on.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct ModelSpec {
+    /// Prony terms of the nominal material ([`DEFAULT_NOMINAL_TERMS`]).
+    pub terms: usize,
     pub effects: Vec<Effect>,
     /// `adhesion` with an adhesive neck that holds the tip past the DMT pull-off (two more
     /// parameters: the neck's length and stiffness). Fitted beside the plain DMT pull-off
@@ -195,7 +197,26 @@ pub struct ModelSpec {
     /// closed-form coefficients): a supply distorted by rectifying loads, or a transformer
     /// near saturation, radiates its harmonics beside the line, the third the strongest.
     pub mains_harmonics: bool,
+    /// Which kind of mode `instrument_resonance` is.
+    pub resonance: ResonanceForm,
 }
+
+/// The forms of `instrument_resonance`. The scanner's own mode rolls the motion off above
+/// it; a mode of part of the frame or stage (a loose sample holder, a stage carriage) only
+/// adds to the motion near its frequency and passes it through above. Inside the band they
+/// look nothing alike: the roll-off form would cut every line above a 100 Hz frame mode.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum ResonanceForm {
+    /// The scanner's mode, `ω0²/(s² + (ω0/Q)s + ω0²)` (frequency and Q).
+    #[default]
+    RollOff,
+    /// A frame mode with its peak gain ([`crate::twin::actuator::ResonantMode::peak_gain`]).
+    Peaking,
+}
+
+/// The parameters of a peaking `instrument_resonance`.
+const PEAKING_RESONANCE_NAMES: &[(&str, &str)] =
+    &[("freq_hz", "Hz"), ("q", "1"), ("peak_gain", "1")];
 
 /// The forms of `detector_nonlinearity`. A detector's departure from linearity is usually one
 /// term: quadratic where the spot sits off the photodiode's centre, cubic where it saturates
@@ -285,31 +306,18 @@ impl FixedColumn {
     }
 }
 
-/// Prony terms of the nominal material. The nominal twin is the simplest model that describes
-/// a viscoelastic indentation across a broadband record; a third time constant is a catalog
-/// effect of its own (`missing_relaxation`), not something the nominal fit may add silently.
-pub const NOMINAL_TERMS: usize = 2;
+/// Prony terms of the nominal material unless a diagnosis is told otherwise
+/// ([`super::DiagnoseOptions::nominal_terms`]): three, the paper's model (its PDMS, Table I)
+/// and the order a simulation of an indentation usually carries. The nominal fit never adds
+/// a term silently: one more retardation time is a catalog effect of its own
+/// (`missing_relaxation`). With a nominal of fewer terms than the simulation behind a
+/// recording had, that effect is named on every record, null ones included (an independent
+/// simulator with the paper's three terms showed it on 2 of 4 nulls and most effect cases).
+pub const DEFAULT_NOMINAL_TERMS: usize = 3;
 
-/// Index in θ of the nominal actuator's lag; its damping follows.
-///
-/// The nominal twin has the actuator's *linear dynamics* besides its gain: no scanner
-/// follows its drive instantly, and at a few hundred of signal-to-noise its bandwidth shows
-/// as a lag of the deflection behind the drive across every line of a broadband record.
-/// Left out, that lag is what the candidates see first, and `instrument_resonance` or
-/// `channel_delay` takes it for the missing physics on every record, null ones included
-/// (found by an independent simulator whose actuator had a 5–10 kHz mode, or a 3–6 kHz lag).
-///
-/// The dynamics are `1/(1 + a1·s + a2·s²)`, fitted as the lag `a1` in samples (θ, linear:
-/// 0 is the ideal actuator, where its Jacobian column stays alive, unlike a logarithm's) and
-/// the mode's quality factor `Q = √a2/a1` between [`ACTUATOR_Q`]'s bounds, through
-/// `Q = lo + (hi − lo)·(1 − cos x)/2`. The low bound makes it a first-order lag in practice;
-/// the high one keeps it a well-damped roll-off, so a resonance with a peak
-/// (`instrument_resonance`) stays a candidate of its own. The map is periodic rather than a
-/// logistic on purpose: a logistic's derivative dies once a step overshoots toward a bound,
-/// and the fit then sat at `Q = hi` for good — found when a sub-sample channel delay, which
-/// `a1 = delay, Q = 1/√2` reproduces to second order, was left unabsorbed by the corpus's
-/// refit and absorbed by the diagnosis's nominal fit.
-pub const ACTUATOR_LAG: usize = 3 + 2 * NOMINAL_TERMS;
+/// The most Prony terms a nominal material may have: beyond four, retardation times a decade
+/// apart no longer fit in the band of one indentation record.
+pub const MAX_NOMINAL_TERMS: usize = 4;
 
 /// The candidates that trade against the nominal actuator's lag: each turns the phase of the
 /// fast lines as a lag does.
@@ -328,13 +336,15 @@ pub const ACTUATOR_Q: (f64, f64) = (0.1, 1.5);
 const IDEAL_LAG_SAMPLES: f64 = 1e-6;
 
 /// The nominal actuator's mode for a lag of `lag_samples` and a damping coordinate `q_phase`
-/// (θ's two coordinates, see [`ACTUATOR_LAG`]); `None`: ideal. A negative lag, a lead, is not
-/// physical and is ideal too: the fit then finds the χ² flat below zero, not a wall (a
-/// lead's negative frequency would make the twin diverge, and a fit pushed toward a lead —
-/// by a drag, whose force leads the motion — stalled against it).
+/// (θ's two coordinates, see [`ModelSpec::actuator_lag`]); `None`: ideal. A negative lag, a
+/// lead, is not physical and is ideal too: the fit then finds the χ² flat below zero, not a
+/// wall (a lead's negative frequency would make the twin diverge, and a fit pushed toward a
+/// lead — by a drag, whose force leads the motion — stalled against it).
 ///
 /// The mode's input ramps between samples ([`InputHold::Ramped`]): under a held input a
 /// lag below half a sample barely showed, and the fit could not find it from a small one.
+/// That is how the corpus's sizing refit runs it in the twin; the diagnosis applies the
+/// same mode to the drive as a band-limited signal instead ([`band_limited_mode`]).
 pub(crate) fn nominal_actuator_mode(
     lag_samples: f64,
     q_phase: f64,
@@ -350,7 +360,62 @@ pub(crate) fn nominal_actuator_mode(
         freq_hz: 1.0 / (2.0 * std::f64::consts::PI * q * a1_s),
         q,
         input: InputHold::Ramped,
+        peak_gain: None,
     })
+}
+
+/// The drive through the nominal actuator `mode`, taken as the band-limited signal its
+/// samples describe: the mode's response `1/(1 + s/(ω0·Q) + s²/ω0²)` applied line by line
+/// to the drive's spectrum. A smooth command between samples is what a drive is (a DAC's
+/// reconstruction filter, a stage controller's set-point interpolation, a simulator's
+/// continuous protocol); ramping it between samples instead (a first-order hold) loses 4 %
+/// of a 1 kHz line's amplitude at 8 kHz behind a fifth of a sample's lag, which the fit
+/// could only mimic by raising the mode's Q to its bound, and the remainder was then named
+/// `hydrodynamic_drag` or `instrument_resonance` on null records of an independent
+/// simulator. The straight line between the first and last samples is taken out first and
+/// put back lagged (`a1·slope`), so the record's two ends, both at rest, meet without a
+/// step when the spectrum wraps. Applied to the drive before the twin's hysteresis and
+/// creep rather than after them: for a lag of a fraction of a sample the order is immaterial.
+fn band_limited_mode(drive: &[f64], fs_hz: f64, mode: &ResonantMode) -> Vec<f64> {
+    use rustfft::{num_complex::Complex, FftPlanner};
+    let n = drive.len();
+    if n < 2 {
+        return drive.to_vec();
+    }
+    let (first, last) = (drive[0], drive[n - 1]);
+    let step = (last - first) / (n - 1) as f64;
+    let line = |k: usize| first + step * k as f64;
+    let mut buf: Vec<Complex<f64>> = drive
+        .iter()
+        .enumerate()
+        .map(|(k, &d)| Complex::new(d - line(k), 0.0))
+        .collect();
+    let mut planner = FftPlanner::new();
+    planner.plan_fft_forward(n).process(&mut buf);
+    let w0 = 2.0 * std::f64::consts::PI * mode.freq_hz;
+    for (k, b) in buf.iter_mut().enumerate() {
+        // Bin k is frequency k·fs/n, or (k − n)·fs/n past the middle (negative).
+        let f = if 2 * k <= n {
+            k as f64
+        } else {
+            k as f64 - n as f64
+        } * fs_hz
+            / n as f64;
+        let s = Complex::new(0.0, 2.0 * std::f64::consts::PI * f);
+        let mut h = 1.0 / (1.0 + s / (w0 * mode.q) + s * s / (w0 * w0));
+        if 2 * k == n {
+            // The Nyquist line of an even record is real: keep the real part.
+            h = Complex::new(h.re, 0.0);
+        }
+        *b *= h;
+    }
+    planner.plan_fft_inverse(n).process(&mut buf);
+    // The line's lag: a1 = 1/(ω0·Q) seconds, `step` per sample.
+    let lag_samples = fs_hz / (w0 * mode.q);
+    buf.iter()
+        .enumerate()
+        .map(|(k, c)| c.re / n as f64 + line(k) - step * lag_samples)
+        .collect()
 }
 
 /// Below this lag, in samples, the nominal actuator's damping is held where the fit starts.
@@ -384,7 +449,7 @@ pub(crate) const ACTUATOR_Q_START: f64 = std::f64::consts::FRAC_PI_2;
 
 impl ModelSpec {
     /// Whether a fit of this model frees the nominal actuator's lag and damping
-    /// ([`ACTUATOR_LAG`]), or holds them where the nominal fit put them.
+    /// ([`ModelSpec::actuator_lag`]), or holds them where the nominal fit put them.
     ///
     /// The nominal fit frees them, and so do the candidates that trade against them — a
     /// delay, a resonance, a drag and a fast retardation time all turn the phase of the fast
@@ -397,22 +462,35 @@ impl ModelSpec {
         self.effects.is_empty() || self.effects.iter().any(|e| TRADES_WITH_LAG.contains(e))
     }
 
-    pub fn nominal() -> Self {
-        Self::with(&[])
-    }
-
-    pub fn with(effects: &[Effect]) -> Self {
-        let mut e = effects.to_vec();
-        e.sort();
-        e.dedup();
+    /// The nominal twin, its material of `terms` Prony terms.
+    pub fn nominal(terms: usize) -> Self {
         Self {
-            effects: e,
+            terms,
+            effects: vec![],
             adhesion_neck: false,
             drift: DriftForm::Deflection,
             tip: TipForm::Swap,
             nonlinearity: NonlinearityForm::Both,
             mains_harmonics: false,
+            resonance: ResonanceForm::RollOff,
         }
+    }
+
+    /// This model with `effects` switched on as well, each new one in its plain form.
+    pub fn with(&self, effects: &[Effect]) -> Self {
+        let mut e = self.effects.clone();
+        e.extend_from_slice(effects);
+        e.sort();
+        e.dedup();
+        Self {
+            effects: e,
+            ..self.clone()
+        }
+    }
+
+    /// The same nominal material and effects, every effect in its plain form.
+    pub fn plain(&self) -> Self {
+        Self::nominal(self.terms).with(&self.effects)
     }
 
     /// The forms of this model worth fitting apart: adhesion with and without a neck, each
@@ -445,6 +523,9 @@ impl ModelSpec {
             let single = [NonlinearityForm::Quadratic, NonlinearityForm::Cubic];
             fork(&mut out, &single, |s, f| s.nonlinearity = f);
         }
+        if first.has(Effect::InstrumentResonance) && first.resonance == ResonanceForm::RollOff {
+            fork(&mut out, &[ResonanceForm::Peaking], |s, f| s.resonance = f);
+        }
         if first.has(Effect::MainsInterference) && !first.mains_harmonics {
             fork(&mut out, &[true], |s, f| s.mains_harmonics = f);
         }
@@ -466,7 +547,8 @@ impl ModelSpec {
             tip: from(Effect::TipGeometry).tip,
             nonlinearity: from(Effect::DetectorNonlinearity).nonlinearity,
             mains_harmonics: from(Effect::MainsInterference).mains_harmonics,
-            ..ModelSpec::with(&effects)
+            resonance: from(Effect::InstrumentResonance).resonance,
+            ..ModelSpec::nominal(a.terms).with(&effects)
         }
     }
 
@@ -478,6 +560,8 @@ impl ModelSpec {
             SURFACE_DRIFT_NAMES
         } else if e == Effect::TipGeometry && self.tip == TipForm::Blunted {
             BLUNTED_TIP_NAMES
+        } else if e == Effect::InstrumentResonance && self.resonance == ResonanceForm::Peaking {
+            PEAKING_RESONANCE_NAMES
         } else {
             e.nonlinear_names()
         }
@@ -497,10 +581,34 @@ impl ModelSpec {
         }
     }
 
+    /// Index in θ of the nominal actuator's lag, after the nominal material; its damping
+    /// follows.
+    ///
+    /// The nominal twin has the actuator's *linear dynamics* besides its gain: no scanner
+    /// follows its drive instantly, and at a few hundred of signal-to-noise its bandwidth shows
+    /// as a lag of the deflection behind the drive across every line of a broadband record.
+    /// Left out, that lag is what the candidates see first, and `instrument_resonance` or
+    /// `channel_delay` takes it for the missing physics on every record, null ones included
+    /// (found by an independent simulator whose actuator had a 5–10 kHz mode, or a 3–6 kHz lag).
+    ///
+    /// The dynamics are `1/(1 + a1·s + a2·s²)`, fitted as the lag `a1` in samples (θ, linear:
+    /// 0 is the ideal actuator, where its Jacobian column stays alive, unlike a logarithm's) and
+    /// the mode's quality factor `Q = √a2/a1` between [`ACTUATOR_Q`]'s bounds, through
+    /// `Q = lo + (hi − lo)·(1 − cos x)/2`. The low bound makes it a first-order lag in practice;
+    /// the high one keeps it a well-damped roll-off, so a resonance with a peak
+    /// (`instrument_resonance`) stays a candidate of its own. The map is periodic rather than a
+    /// logistic on purpose: a logistic's derivative dies once a step overshoots toward a bound,
+    /// and the fit then sat at `Q = hi` for good — found when a sub-sample channel delay, which
+    /// `a1 = delay, Q = 1/√2` reproduces to second order, was left unabsorbed by the corpus's
+    /// refit and absorbed by the diagnosis's nominal fit.
+    pub fn actuator_lag(&self) -> usize {
+        3 + 2 * self.terms
+    }
+
     /// Number of nominal nonlinear parameters: ln g, contact point, ln J_inst, (ln Ji, ln τi)×n,
-    /// then the actuator's lag and damping ([`ACTUATOR_LAG`]).
+    /// then the actuator's lag and damping ([`Self::actuator_lag`]).
     pub fn n_nominal(&self) -> usize {
-        ACTUATOR_LAG + 2
+        self.actuator_lag() + 2
     }
 
     pub fn n_nonlinear(&self) -> usize {
@@ -604,8 +712,15 @@ const CONE_HALF_ANGLE_DEG: f64 = 20.0;
 const SWAP_SPHERE_RADIUS_NM: f64 = 1000.0;
 
 impl Problem {
-    /// The nominal start of θ from a first estimate of gain, contact point and material.
-    pub fn nominal_theta(&self, gain: f64, contact_nm: f64, material: &PronySeries) -> Vec<f64> {
+    /// The nominal start of θ (`n` Prony terms) from a first estimate of gain, contact
+    /// point and material; missing terms start a decade apart.
+    pub fn nominal_theta(
+        &self,
+        n: usize,
+        gain: f64,
+        contact_nm: f64,
+        material: &PronySeries,
+    ) -> Vec<f64> {
         let mut th = vec![
             gain.ln(),
             contact_nm / ZC_SCALE_NM,
@@ -613,7 +728,7 @@ impl Problem {
         ];
         let mut terms = material.terms.clone();
         terms.sort_by(|a, b| a.tau_s.total_cmp(&b.tau_s));
-        for i in 0..NOMINAL_TERMS {
+        for i in 0..n {
             th.push(
                 terms
                     .get(i)
@@ -622,7 +737,7 @@ impl Problem {
                     .ln(),
             );
         }
-        for i in 0..NOMINAL_TERMS {
+        for i in 0..n {
             let default = 0.01 * 10f64.powi(i as i32);
             th.push(terms.get(i).map_or(default, |t| t.tau_s).ln());
         }
@@ -631,11 +746,11 @@ impl Problem {
     }
 
     /// The nominal actuator's dynamics at θ, as reported.
-    pub fn actuator_dynamics(&self, th: &[f64]) -> super::ActuatorDynamics {
-        let mode = self.actuator_mode(th);
+    pub fn actuator_dynamics(&self, spec: &ModelSpec, th: &[f64]) -> super::ActuatorDynamics {
+        let mode = self.actuator_mode(spec, th);
         super::ActuatorDynamics {
             lag_s: if mode.is_some() {
-                th[ACTUATOR_LAG] / self.fs_hz
+                th[spec.actuator_lag()] / self.fs_hz
             } else {
                 0.0
             },
@@ -644,17 +759,19 @@ impl Problem {
     }
 
     /// The nominal actuator's mode at θ (see [`nominal_actuator_mode`]).
-    fn actuator_mode(&self, th: &[f64]) -> Option<ResonantMode> {
-        nominal_actuator_mode(th[ACTUATOR_LAG], th[ACTUATOR_LAG + 1], self.fs_hz)
+    fn actuator_mode(&self, spec: &ModelSpec, th: &[f64]) -> Option<ResonantMode> {
+        let lag = spec.actuator_lag();
+        nominal_actuator_mode(th[lag], th[lag + 1], self.fs_hz)
     }
 
     /// The material of θ (nominal terms plus `missing_relaxation`'s when on).
     pub fn material(&self, spec: &ModelSpec, th: &[f64]) -> PronySeries {
         let j_inst = th[2].exp();
-        let mut terms: Vec<PronyTerm> = (0..NOMINAL_TERMS)
+        let n = spec.terms;
+        let mut terms: Vec<PronyTerm> = (0..n)
             .map(|i| PronyTerm {
                 j_per_pa: th[3 + i].exp(),
-                tau_s: th[3 + NOMINAL_TERMS + i].exp(),
+                tau_s: th[3 + n + i].exp(),
             })
             .collect();
         if let Some(o) = spec.offset_of(Effect::MissingRelaxation) {
@@ -677,10 +794,14 @@ impl Problem {
 
     /// The twin of θ, noise-free.
     pub fn twin_config(&self, spec: &ModelSpec, th: &[f64]) -> TwinConfig {
-        let p = |e: Effect, i: usize| spec.offset_of(e).map(|o| th[o + i]);
+        let p = |e: Effect, i: usize| {
+            spec.offset_of(e)
+                .filter(|_| i < spec.params_of(e).len())
+                .map(|o| th[o + i])
+        };
         let mut actuator = ActuatorConfig {
             gain_nm_per_v: self.gain(th),
-            modes: self.actuator_mode(th).into_iter().collect(),
+            modes: self.actuator_mode(spec, th).into_iter().collect(),
             hysteresis: None,
             creep: None,
         };
@@ -706,7 +827,14 @@ impl Problem {
             p(Effect::InstrumentResonance, 0),
             p(Effect::InstrumentResonance, 1),
         ) {
-            actuator.modes.push(ResonantMode::held(f.exp(), q.exp()));
+            actuator
+                .modes
+                .push(match p(Effect::InstrumentResonance, 2) {
+                    Some(g) if spec.resonance == ResonanceForm::Peaking => {
+                        ResonantMode::peaking(f.exp(), q.exp(), g.exp())
+                    }
+                    _ => ResonantMode::held(f.exp(), q.exp()),
+                });
         }
         let tip = if spec.has(Effect::TipGeometry) && spec.tip == TipForm::Blunted {
             let depth = p(Effect::TipGeometry, 0).map_or(1.0, f64::exp);
@@ -773,22 +901,33 @@ impl Problem {
         if th.iter().any(|v| !v.is_finite()) {
             return None;
         }
-        let cfg = self.twin_config(spec, th);
+        let mut cfg = self.twin_config(spec, th);
         if !cfg.validate("").is_empty() {
             return None;
         }
         self.simulations
             .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        // The nominal actuator's dynamics act on the drive as a band-limited signal (see
+        // `band_limited_mode`); the twin's own actuator runs without them.
+        let lagged;
+        let drive = match self.actuator_mode(spec, th) {
+            Some(mode) => {
+                cfg.actuator.modes.remove(0);
+                lagged = band_limited_mode(&self.drive, self.fs_hz, &mode);
+                &lagged
+            }
+            None => &self.drive,
+        };
         let mut twin = Twin::new(&cfg, self.fs_hz);
-        twin.settle(self.drive[0]);
-        let n = self.drive.len();
+        twin.settle(drive[0]);
+        let n = drive.len();
         let mut sim = Simulation {
             clean_v: Vec::with_capacity(n),
             base_nm: Vec::with_capacity(n),
             indentation_m: Vec::with_capacity(n),
             lever_share: Vec::with_capacity(n),
         };
-        for &d in &self.drive {
+        for &d in drive {
             let s = twin.step(d);
             if !s.deflection_v.is_finite() {
                 return None;
@@ -1157,6 +1296,36 @@ mod tests {
     /// The nominal actuator's mode is the lag it is fitted as: `a1 = 1/(2π·f·Q)` is the lag in
     /// samples over the sample rate, `Q` stays within its bounds (reached at phase 0 and π),
     /// a lag of zero or a lead is the ideal actuator, and the mode's input is ramped.
+    /// The band-limited mode is the mode's frequency response on every line of the record,
+    /// and a straight drive comes out lagged by `a1` whole: no wrap-around at the ends.
+    #[test]
+    fn a_band_limited_mode_is_the_modes_response() {
+        let (fs, n) = (8000.0, 4000);
+        let mode = nominal_actuator_mode(0.3, ACTUATOR_Q_START, fs).unwrap();
+        let w0 = 2.0 * std::f64::consts::PI * mode.freq_hz;
+        let a1 = 1.0 / (w0 * mode.q);
+        // A line on the record's grid (500 cycles, 1 kHz): amplitude and phase of 1/(1 + a1·s + …).
+        let f = 500.0 * fs / n as f64;
+        let w = 2.0 * std::f64::consts::PI * f;
+        // Centred on the record, so that its first and last samples are equal (no line).
+        let t = |k: usize| (k as f64 + 0.5 - n as f64 / 2.0) / fs;
+        let line: Vec<f64> = (0..n).map(|k| (w * t(k)).cos()).collect();
+        let out = band_limited_mode(&line, fs, &mode);
+        let h = 1.0 / nalgebra::Complex::new(1.0 - (w / w0).powi(2), w / (w0 * mode.q));
+        for (k, y) in out.iter().enumerate() {
+            let expect = h.norm() * (w * t(k) + h.arg()).cos();
+            assert!((y - expect).abs() < 1e-9, "sample {k}: {y} vs {expect}");
+        }
+        assert!(h.arg() < -0.2, "the line is turned by the lag: {h}");
+        // A ramp from rest to rest over the record: the ramp, a1 late.
+        let ramp: Vec<f64> = (0..n).map(|k| 3.0 + 0.01 * k as f64).collect();
+        let lagged = band_limited_mode(&ramp, fs, &mode);
+        for (k, y) in lagged.iter().enumerate() {
+            let expect = 3.0 + 0.01 * (k as f64 - a1 * fs);
+            assert!((y - expect).abs() < 1e-9, "sample {k}: {y} vs {expect}");
+        }
+    }
+
     #[test]
     fn nominal_actuator_mode_is_its_lag() {
         let fs = 4000.0;
@@ -1194,7 +1363,7 @@ mod tests {
     /// a model has two; a pair keeps each effect's own form.
     #[test]
     fn variants_and_pairs_carry_the_forms() {
-        let forms = |e: &[Effect]| ModelSpec::with(e).variants();
+        let forms = |e: &[Effect]| ModelSpec::nominal(2).with(e).variants();
         assert_eq!(forms(&[Effect::MissingRelaxation]).len(), 1);
         let drift = forms(&[Effect::ThermalDrift]);
         let kinds: Vec<DriftForm> = drift.iter().map(|s| s.drift).collect();
@@ -1208,6 +1377,10 @@ mod tests {
         );
         assert_eq!(drift[2].n_nonlinear(), drift[0].n_nonlinear() + 2);
         assert_eq!(forms(&[Effect::DetectorNonlinearity]).len(), 3);
+        let resonance = forms(&[Effect::InstrumentResonance]);
+        let kinds: Vec<ResonanceForm> = resonance.iter().map(|s| s.resonance).collect();
+        assert_eq!(kinds, [ResonanceForm::RollOff, ResonanceForm::Peaking]);
+        assert_eq!(resonance[1].n_nonlinear(), resonance[0].n_nonlinear() + 1);
         let mains = forms(&[Effect::MainsInterference]);
         assert_eq!(mains.len(), 2);
         assert!(!mains[0].mains_harmonics && mains[1].mains_harmonics);

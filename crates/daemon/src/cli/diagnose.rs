@@ -6,12 +6,14 @@ use crate::fan::{cores, Threads};
 use crate::output::print_json;
 use crate::plot::{canvas, draw_legend, err, legend_line, padded_range};
 use anyhow::Context;
+use clap::builder::TypedValueParser;
 use clap::Args;
 use plotters::prelude::*;
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
 use viscoprobe_core::diagnose::bench::{score, CaseOutcome, Score};
-use viscoprobe_core::diagnose::corpus::{concealed_corpus_with, CorpusCase};
+use viscoprobe_core::diagnose::corpus::{concealed_corpus_with, CorpusCase, MATERIAL_TERMS};
+use viscoprobe_core::diagnose::model::{DEFAULT_NOMINAL_TERMS, MAX_NOMINAL_TERMS};
 use viscoprobe_core::diagnose::{
     diagnose_with, BasePosition, DiagnoseOptions, Diagnosis, FitSummary, Weighting,
 };
@@ -33,6 +35,12 @@ pub struct DiagnoseArgs {
     /// whatever the number.
     #[arg(long)]
     pub threads: Option<usize>,
+    /// Prony terms of the nominal material: as many as the simulation this recording is
+    /// compared with has (the paper's three unless told). A retardation time beyond them is
+    /// reported as `missing_relaxation`.
+    #[arg(long, default_value_t = DEFAULT_NOMINAL_TERMS,
+          value_parser = clap::value_parser!(u8).range(1..=MAX_NOMINAL_TERMS as i64).map(usize::from))]
+    pub prony_terms: usize,
 }
 
 #[derive(Debug, Args)]
@@ -153,7 +161,11 @@ pub fn run(args: DiagnoseArgs) -> anyhow::Result<()> {
         );
     }
     let fan = args.threads.map_or_else(Threads::all_cores, Threads::new)?;
-    let d = diagnose_with(&rec, &DiagnoseOptions::default(), &fan)
+    let opts = DiagnoseOptions {
+        nominal_terms: args.prony_terms,
+        ..DiagnoseOptions::default()
+    };
+    let d = diagnose_with(&rec, &opts, &fan)
         .with_context(|| format!("diagnosing {}", args.recording.display()))?;
     let seconds = started.elapsed().as_secs_f64();
     if let Some(dir) = &args.plot {
@@ -567,6 +579,11 @@ pub fn run_corpus(
     progress: impl Fn(&CaseOutcome, usize, usize) + Sync,
 ) -> anyhow::Result<Vec<CaseOutcome>> {
     let threads = threads.clamp(1, cases.len().max(1));
+    // The corpus's cases are compared with its own two-term nominal material.
+    let corpus_options = DiagnoseOptions {
+        nominal_terms: MATERIAL_TERMS,
+        ..DiagnoseOptions::default()
+    };
     // Each case its own fan: a case's helper threads are not the others' to take.
     let fans = (0..threads)
         .map(|_| Threads::new(cores() / threads))
@@ -580,7 +597,7 @@ pub fn run_corpus(
                 let i = next.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
                 let Some(c) = cases.get(i) else { break };
                 let t0 = std::time::Instant::now();
-                let r = diagnose_with(&c.recording, &DiagnoseOptions::default(), fan)
+                let r = diagnose_with(&c.recording, &corpus_options, fan)
                     .map(|d| CaseOutcome::new(&c.name, &c.effects, &d, t0.elapsed().as_secs_f64()))
                     .with_context(|| format!("case {}", c.name));
                 if let Ok(o) = &r {
