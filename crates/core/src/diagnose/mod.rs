@@ -6,8 +6,8 @@
 //! 1. **Nominal twin.** The twin's nominal model — actuator gain, Hertz (or Sneddon) contact
 //!    with the sidecar's tip and calibration, a Prony material of as many terms as the
 //!    simulation it stands for (three, the paper's, unless told: [`DiagnoseOptions`]), the
-//!    actuator's lag, a contact point and a deflection offset — is fitted to the recorded deflection by playing the recorded drive
-//!    through the twin ([`model`], [`fit`]). The noise floor is measured where the lever is
+//!    actuator's lag, a contact point and a deflection offset — is fitted to the recorded
+//!    deflection by playing the recorded drive through the twin ([`model`], [`fit`]). The noise floor is measured where the lever is
 //!    free ([`noise`]); every residual is whitened by it, so sums of squares are χ².
 //! 2. **Locate.** The whitened residual is tested phase by phase (approach, contact onset,
 //!    excitation, hold, retract, pull-off), band by band (excited lines, mains lines, octave
@@ -429,8 +429,7 @@ fn first_material(
 }
 
 /// A material of relaxed compliance `j` with `n` terms, the i-th holding `fraction(i)·j`,
-/// their retardation times log-spaced from `taus.0` to `taus.1` (a single term at the
-/// middle).
+/// their retardation times log-spaced from `lo` to `hi` (a single term at the middle).
 fn spread_material(
     j: f64,
     n: usize,
