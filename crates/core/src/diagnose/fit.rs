@@ -205,7 +205,7 @@ pub fn restarted<T>(
 /// Fits the nonlinear parameters of `spec` from each start — every one, but for the nominal
 /// actuator's dynamics where `spec` holds them ([`ModelSpec::frees_actuator_dynamics`]) —
 /// and keeps the lowest χ²_train. The actuator's damping is held too where the start's lag is
-/// too short for it to show ([`frees_parameter`]). A held parameter's standard deviation is 0.
+/// too short for it to show (`model::frees_parameter`). A held parameter's standard deviation is 0.
 pub fn fit_model(
     problem: &Problem,
     spec: &ModelSpec,
