@@ -375,6 +375,7 @@ mod tests {
             mains_hz: 50.0,
             floor_from_hz: 1.0,
             fixed_columns: Default::default(),
+            drive_spectrum: Default::default(),
             simulations: Default::default(),
         };
         // A start some way off: gain, contact point and material all wrong by a few %.

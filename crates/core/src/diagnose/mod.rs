@@ -7,8 +7,9 @@
 //!    with the sidecar's tip and calibration, a Prony material of as many terms as the
 //!    simulation it stands for (three, the paper's, unless told: [`DiagnoseOptions`]), the
 //!    actuator's lag, a contact point and a deflection offset — is fitted to the recorded
-//!    deflection by playing the recorded drive through the twin ([`model`], [`fit`]). The noise floor is measured where the lever is
-//!    free ([`noise`]); every residual is whitened by it, so sums of squares are χ².
+//!    deflection by playing the recorded drive through the twin ([`model`], [`fit`]). The
+//!    noise floor is measured where the lever is free ([`noise`]); every residual is
+//!    whitened by it, so sums of squares are χ².
 //! 2. **Locate.** The whitened residual is tested phase by phase (approach, contact onset,
 //!    excitation, hold, retract, pull-off), band by band (excited lines, mains lines, octave
 //!    bands), for whiteness and for correlation with the input ([`locate`]).
@@ -547,6 +548,7 @@ pub fn diagnose_with(
         mains_hz: pick_mains(&y[..free_end.max(2)], fs),
         floor_from_hz: 3.0 * fs / noise.samples.max(1) as f64,
         fixed_columns: Default::default(),
+        drive_spectrum: Default::default(),
         simulations: Default::default(),
     };
 

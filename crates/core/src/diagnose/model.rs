@@ -344,7 +344,7 @@ const IDEAL_LAG_SAMPLES: f64 = 1e-6;
 /// The mode's input ramps between samples ([`InputHold::Ramped`]): under a held input a
 /// lag below half a sample barely showed, and the fit could not find it from a small one.
 /// That is how the corpus's sizing refit runs it in the twin; the diagnosis applies the
-/// same mode to the drive as a band-limited signal instead ([`band_limited_mode`]).
+/// same mode to the drive as a band-limited signal instead ([`DriveSpectrum`]).
 pub(crate) fn nominal_actuator_mode(
     lag_samples: f64,
     q_phase: f64,
@@ -364,58 +364,81 @@ pub(crate) fn nominal_actuator_mode(
     })
 }
 
-/// The drive through the nominal actuator `mode`, taken as the band-limited signal its
-/// samples describe: the mode's response `1/(1 + s/(ω0·Q) + s²/ω0²)` applied line by line
-/// to the drive's spectrum. A smooth command between samples is what a drive is (a DAC's
-/// reconstruction filter, a stage controller's set-point interpolation, a simulator's
-/// continuous protocol); ramping it between samples instead (a first-order hold) loses 4 %
-/// of a 1 kHz line's amplitude at 8 kHz behind a fifth of a sample's lag, which the fit
-/// could only mimic by raising the mode's Q to its bound, and the remainder was then named
-/// `hydrodynamic_drag` or `instrument_resonance` on null records of an independent
-/// simulator. The straight line between the first and last samples is taken out first and
-/// put back lagged (`a1·slope`), so the record's two ends, both at rest, meet without a
-/// step when the spectrum wraps. Applied to the drive before the twin's hysteresis and
-/// creep rather than after them: for a lag of a fraction of a sample the order is immaterial.
-fn band_limited_mode(drive: &[f64], fs_hz: f64, mode: &ResonantMode) -> Vec<f64> {
-    use rustfft::{num_complex::Complex, FftPlanner};
-    let n = drive.len();
-    if n < 2 {
-        return drive.to_vec();
+/// The drive's spectrum, for the nominal actuator's mode to act on the drive as the band-limited
+/// signal its samples describe ([`Self::through`]): the mode's response `1/(1 + s/(ω0·Q) + s²/ω0²)`
+/// applied line by line to the drive's spectrum. A smooth command between samples is what a drive
+/// is (a DAC's reconstruction filter, a stage controller's set-point interpolation, a simulator's
+/// continuous protocol); ramping it between samples instead (a first-order hold) loses 4 % of a 1
+/// kHz line's amplitude at 8 kHz behind a fifth of a sample's lag, which the fit could only mimic
+/// by raising the mode's Q to its bound, and the remainder was then named `hydrodynamic_drag` or
+/// `instrument_resonance` on null records of an independent simulator. The straight line between
+/// the first and last samples is taken out first and put back lagged (`a1·slope`), so the record's
+/// two ends, both at rest, meet without a step when the spectrum wraps. Applied to the drive before
+/// the twin's hysteresis and creep rather than after them: for a lag of a fraction of a sample the
+/// order is immaterial. The forward transform is the same for every model, so a [`Problem`]
+/// computes it once.
+#[derive(Debug)]
+pub struct DriveSpectrum {
+    first: f64,
+    /// The straight line's rise per sample.
+    step: f64,
+    bins: Vec<rustfft::num_complex::Complex<f64>>,
+}
+
+impl DriveSpectrum {
+    fn new(drive: &[f64]) -> Self {
+        use rustfft::{num_complex::Complex, FftPlanner};
+        let n = drive.len();
+        let first = drive.first().copied().unwrap_or(0.0);
+        let step = match n {
+            0 | 1 => 0.0,
+            _ => (drive[n - 1] - first) / (n - 1) as f64,
+        };
+        let mut bins: Vec<Complex<f64>> = drive
+            .iter()
+            .enumerate()
+            .map(|(k, &d)| Complex::new(d - (first + step * k as f64), 0.0))
+            .collect();
+        FftPlanner::new().plan_fft_forward(n).process(&mut bins);
+        Self { first, step, bins }
     }
-    let (first, last) = (drive[0], drive[n - 1]);
-    let step = (last - first) / (n - 1) as f64;
-    let line = |k: usize| first + step * k as f64;
-    let mut buf: Vec<Complex<f64>> = drive
-        .iter()
-        .enumerate()
-        .map(|(k, &d)| Complex::new(d - line(k), 0.0))
-        .collect();
-    let mut planner = FftPlanner::new();
-    planner.plan_fft_forward(n).process(&mut buf);
-    let w0 = 2.0 * std::f64::consts::PI * mode.freq_hz;
-    for (k, b) in buf.iter_mut().enumerate() {
-        // Bin k is frequency k·fs/n, or (k − n)·fs/n past the middle (negative).
-        let f = if 2 * k <= n {
-            k as f64
-        } else {
-            k as f64 - n as f64
-        } * fs_hz
-            / n as f64;
-        let s = Complex::new(0.0, 2.0 * std::f64::consts::PI * f);
-        let mut h = 1.0 / (1.0 + s / (w0 * mode.q) + s * s / (w0 * w0));
-        if 2 * k == n {
-            // The Nyquist line of an even record is real: keep the real part.
-            h = Complex::new(h.re, 0.0);
-        }
-        *b *= h;
+
+    /// The drive through `mode`, at `fs_hz`.
+    fn through(&self, mode: &ResonantMode, fs_hz: f64) -> Vec<f64> {
+        use rustfft::{num_complex::Complex, FftPlanner};
+        let n = self.bins.len();
+        let w0 = 2.0 * std::f64::consts::PI * mode.freq_hz;
+        let mut buf: Vec<Complex<f64>> = self
+            .bins
+            .iter()
+            .enumerate()
+            .map(|(k, b)| {
+                // Bin k is frequency k·fs/n, or (k − n)·fs/n past the middle (negative).
+                let line = if 2 * k <= n {
+                    k as f64
+                } else {
+                    k as f64 - n as f64
+                };
+                let f = line * fs_hz / n as f64;
+                let s = Complex::new(0.0, 2.0 * std::f64::consts::PI * f);
+                let mut h = 1.0 / (1.0 + s / (w0 * mode.q) + s * s / (w0 * w0));
+                if 2 * k == n {
+                    // The Nyquist line of an even record is real: keep the real part.
+                    h = Complex::new(h.re, 0.0);
+                }
+                b * h
+            })
+            .collect();
+        FftPlanner::new().plan_fft_inverse(n).process(&mut buf);
+        // The line's lag: a1 = 1/(ω0·Q) seconds, `step` per sample.
+        let lag_samples = fs_hz / (w0 * mode.q);
+        buf.iter()
+            .enumerate()
+            .map(|(k, c)| {
+                c.re / n as f64 + (self.first + self.step * k as f64) - self.step * lag_samples
+            })
+            .collect()
     }
-    planner.plan_fft_inverse(n).process(&mut buf);
-    // The line's lag: a1 = 1/(ω0·Q) seconds, `step` per sample.
-    let lag_samples = fs_hz / (w0 * mode.q);
-    buf.iter()
-        .enumerate()
-        .map(|(k, c)| c.re / n as f64 + line(k) - step * lag_samples)
-        .collect()
 }
 
 /// Below this lag, in samples, the nominal actuator's damping is held where the fit starts.
@@ -584,18 +607,19 @@ impl ModelSpec {
     /// Index in θ of the nominal actuator's lag, after the nominal material; its damping
     /// follows.
     ///
-    /// The nominal twin has the actuator's *linear dynamics* besides its gain: no scanner
-    /// follows its drive instantly, and at a few hundred of signal-to-noise its bandwidth shows
-    /// as a lag of the deflection behind the drive across every line of a broadband record.
-    /// Left out, that lag is what the candidates see first, and `instrument_resonance` or
-    /// `channel_delay` takes it for the missing physics on every record, null ones included
-    /// (found by an independent simulator whose actuator had a 5–10 kHz mode, or a 3–6 kHz lag).
+    /// The nominal twin has the actuator's *linear dynamics* besides its gain: no
+    /// scanner follows its drive instantly, and at a few hundred of signal-to-noise its
+    /// bandwidth shows as a lag of the deflection behind the drive across every line of a
+    /// broadband record. Left out, that lag is what the candidates see first, and
+    /// `instrument_resonance` or `channel_delay` takes it for the missing physics on every
+    /// record, null ones included (found by an independent simulator whose actuator had a 5–10
+    /// kHz mode, or a 3–6 kHz lag).
     ///
-    /// The dynamics are `1/(1 + a1·s + a2·s²)`, fitted as the lag `a1` in samples (θ, linear:
-    /// 0 is the ideal actuator, where its Jacobian column stays alive, unlike a logarithm's) and
-    /// the mode's quality factor `Q = √a2/a1` between [`ACTUATOR_Q`]'s bounds, through
-    /// `Q = lo + (hi − lo)·(1 − cos x)/2`. The low bound makes it a first-order lag in practice;
-    /// the high one keeps it a well-damped roll-off, so a resonance with a peak
+    /// The dynamics are `1/(1 + a1·s + a2·s²)`, fitted as the lag `a1` in samples (θ, linear: 0
+    /// is the ideal actuator, where its Jacobian column stays alive, unlike a logarithm's) and
+    /// the mode's quality factor `Q = √a2/a1` between [`ACTUATOR_Q`]'s bounds, through `Q = lo
+    /// + (hi − lo)·(1 − cos x)/2`. The low bound makes it a first-order lag in practice; the
+    /// high one keeps it a well-damped roll-off, so a resonance with a peak
     /// (`instrument_resonance`) stays a candidate of its own. The map is periodic rather than a
     /// logistic on purpose: a logistic's derivative dies once a step overshoots toward a bound,
     /// and the fit then sat at `Q = hi` for good — found when a sub-sample channel delay, which
@@ -674,6 +698,8 @@ pub struct Problem {
     pub floor_from_hz: f64,
     /// Offset, time and mains columns, raw and whitened (see `fixed_columns`); leave empty.
     pub fixed_columns: std::sync::OnceLock<Vec<(Vec<f64>, Vec<f64>)>>,
+    /// The drive's spectrum, line taken out (see [`DriveSpectrum`]); leave empty.
+    pub drive_spectrum: std::sync::OnceLock<DriveSpectrum>,
     /// Twin simulations run so far (the cost of a diagnosis); leave at zero.
     pub simulations: std::sync::atomic::AtomicUsize,
 }
@@ -801,7 +827,8 @@ impl Problem {
         };
         let mut actuator = ActuatorConfig {
             gain_nm_per_v: self.gain(th),
-            modes: self.actuator_mode(spec, th).into_iter().collect(),
+            // The nominal mode acts on the drive before the twin (`Problem::simulate`).
+            modes: vec![],
             hysteresis: None,
             creep: None,
         };
@@ -901,19 +928,21 @@ impl Problem {
         if th.iter().any(|v| !v.is_finite()) {
             return None;
         }
-        let mut cfg = self.twin_config(spec, th);
+        let cfg = self.twin_config(spec, th);
         if !cfg.validate("").is_empty() {
             return None;
         }
         self.simulations
             .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-        // The nominal actuator's dynamics act on the drive as a band-limited signal (see
-        // `band_limited_mode`); the twin's own actuator runs without them.
+        // The nominal actuator's dynamics act on the drive as a band-limited signal
+        // (`DriveSpectrum`); the twin's own actuator has only the candidates' modes.
         let lagged;
         let drive = match self.actuator_mode(spec, th) {
             Some(mode) => {
-                cfg.actuator.modes.remove(0);
-                lagged = band_limited_mode(&self.drive, self.fs_hz, &mode);
+                let spectrum = self
+                    .drive_spectrum
+                    .get_or_init(|| DriveSpectrum::new(&self.drive));
+                lagged = spectrum.through(&mode, self.fs_hz);
                 &lagged
             }
             None => &self.drive,
@@ -1304,13 +1333,14 @@ mod tests {
         let mode = nominal_actuator_mode(0.3, ACTUATOR_Q_START, fs).unwrap();
         let w0 = 2.0 * std::f64::consts::PI * mode.freq_hz;
         let a1 = 1.0 / (w0 * mode.q);
-        // A line on the record's grid (500 cycles, 1 kHz): amplitude and phase of 1/(1 + a1·s + …).
+        // A line on the record's grid (500 cycles, 1 kHz): amplitude and phase of
+        // 1/(1 + a1·s + a2·s²).
         let f = 500.0 * fs / n as f64;
         let w = 2.0 * std::f64::consts::PI * f;
         // Centred on the record, so that its first and last samples are equal (no line).
         let t = |k: usize| (k as f64 + 0.5 - n as f64 / 2.0) / fs;
         let line: Vec<f64> = (0..n).map(|k| (w * t(k)).cos()).collect();
-        let out = band_limited_mode(&line, fs, &mode);
+        let out = DriveSpectrum::new(&line).through(&mode, fs);
         let h = 1.0 / nalgebra::Complex::new(1.0 - (w / w0).powi(2), w / (w0 * mode.q));
         for (k, y) in out.iter().enumerate() {
             let expect = h.norm() * (w * t(k) + h.arg()).cos();
@@ -1319,7 +1349,7 @@ mod tests {
         assert!(h.arg() < -0.2, "the line is turned by the lag: {h}");
         // A ramp from rest to rest over the record: the ramp, a1 late.
         let ramp: Vec<f64> = (0..n).map(|k| 3.0 + 0.01 * k as f64).collect();
-        let lagged = band_limited_mode(&ramp, fs, &mode);
+        let lagged = DriveSpectrum::new(&ramp).through(&mode, fs);
         for (k, y) in lagged.iter().enumerate() {
             let expect = 3.0 + 0.01 * (k as f64 - a1 * fs);
             assert!((y - expect).abs() < 1e-9, "sample {k}: {y} vs {expect}");
