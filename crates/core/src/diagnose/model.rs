@@ -617,8 +617,8 @@ impl ModelSpec {
     ///
     /// The dynamics are `1/(1 + a1·s + a2·s²)`, fitted as the lag `a1` in samples (θ, linear: 0
     /// is the ideal actuator, where its Jacobian column stays alive, unlike a logarithm's) and
-    /// the mode's quality factor `Q = √a2/a1` between [`ACTUATOR_Q`]'s bounds, through `Q = lo
-    /// + (hi − lo)·(1 − cos x)/2`. The low bound makes it a first-order lag in practice; the
+    /// the mode's quality factor `Q = √a2/a1` between [`ACTUATOR_Q`]'s bounds, through
+    /// `Q = lo + (hi − lo)·(1 − cos x)/2`. The low bound makes it a first-order lag in practice; the
     /// high one keeps it a well-damped roll-off, so a resonance with a peak
     /// (`instrument_resonance`) stays a candidate of its own. The map is periodic rather than a
     /// logistic on purpose: a logistic's derivative dies once a step overshoots toward a bound,
