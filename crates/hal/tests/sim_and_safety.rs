@@ -33,6 +33,7 @@ fn twin() -> TwinConfig {
             contact_point_nm: 100.0,
             adhesion_nn: None,
             neck: None,
+            adhesion_range_nm: None,
             thickness_nm: None,
             surface_drift_nm_per_s: None,
             surface_drift_curvature_nm_per_s2: None,

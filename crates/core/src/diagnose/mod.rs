@@ -47,8 +47,8 @@ use fit::{
 };
 use locate::{Location, Phase};
 use model::{
-    DriftForm, Effect, ModelSpec, Problem, ResonanceForm, TipForm, DEFAULT_NOMINAL_TERMS,
-    MAX_NOMINAL_TERMS,
+    AdhesionForm, DriftForm, Effect, ModelSpec, Problem, ResonanceForm, TipForm,
+    DEFAULT_NOMINAL_TERMS, MAX_NOMINAL_TERMS,
 };
 
 /// Where a peaking resonance's gain starts: a peak of twice the motion, between a mode
@@ -400,6 +400,19 @@ fn find_contact(y: &[f64]) -> Result<(usize, f64, f64), DiagnoseError> {
     Ok((contact, base, sigma))
 }
 
+/// The sample where an adhesive snap-in pulls the lever, still short of `contact` (the
+/// rise `find_contact` found), below its free level `base`, or `None` where nothing does:
+/// the first sample of the third of the record before `contact` more than 6 σ below the
+/// free level, the median of it and the four after more than 3 σ below (a snapped lever
+/// stays down while the contact builds up; a spike of noise does not).
+fn find_snap_in(y: &[f64], contact: usize, base: f64, sigma: f64) -> Option<usize> {
+    let contact = contact.min(y.len());
+    let k = (contact - contact / 3..contact).find(|&k| y[k] < base - 6.0 * sigma)?;
+    let mut next: Vec<f64> = y[k..(k + 5).min(contact)].to_vec();
+    next.sort_by(f64::total_cmp);
+    (next.len() >= 3 && next[next.len() / 2] < base - 3.0 * sigma).then_some(k)
+}
+
 /// A first material from the recording's (u, y) by the offline fitter, or a static Hertz
 /// estimate when that fails.
 fn first_material(
@@ -506,7 +519,13 @@ pub fn diagnose_with(
     }
     .filter(|&c| c > 0 && c < n)
     .unwrap_or(contact0);
-    let free_end = contact.saturating_sub((contact / 20).max(5));
+    // An adhesive snap-in pulls the lever below its free level ahead of the contact found
+    // above, which looks for the rise. The free lever, and the noise floor measured on it,
+    // end before the snap: measured across it, the floor of an independent simulator's
+    // recording came out twice the true noise, and its adhesion was lost in that floor.
+    let snap = find_snap_in(&y, contact, base, sigma_head);
+    let touch = snap.unwrap_or(contact);
+    let free_end = touch.saturating_sub((touch / 20).max(5));
     let noise = noise::measure(&y[..free_end], fs).unwrap_or_else(|| noise::fallback(&y));
     let declared_tip = match rec.meta.tip {
         crate::recording::Tip::Sphere { radius_nm } => TipConfig::Sphere { radius_nm },
@@ -530,7 +549,9 @@ pub fn diagnose_with(
         let tensile_from = y[..kmin].iter().rposition(|&v| v >= base).unwrap_or(kmin);
         (tensile_from + kmin) / 2
     };
-    let (train, held) = split_train_held(n, block, anchor, &[contact, anchor]);
+    let mut events = vec![contact, anchor];
+    events.extend(snap);
+    let (train, held) = split_train_held(n, block, anchor, &events);
     let t_s: Vec<f64> = rec.time_s.iter().map(|t| t - rec.time_s[0]).collect();
     let mut problem = Problem {
         fs_hz: fs,
@@ -630,7 +651,7 @@ pub fn diagnose_with(
     let phases = locate::phases(
         &drive,
         &y,
-        contact,
+        touch,
         base,
         noise.sigma_v.max(sigma_head),
         &segment_hints(rec),
@@ -665,7 +686,7 @@ pub fn diagnose_with(
 
         // 3. Screen every catalog effect.
         let q = orthonormal_basis(&nom.jacobian);
-        let ctx = StartContext::new(&problem, nom, &white_nom, base, &phases);
+        let ctx = StartContext::new(&problem, nom, &white_nom, base, &phases, snap);
         // The candidates are independent of one another: a fan may screen them side by side.
         let candidates: Vec<Effect> = Effect::ALL
             .into_iter()
@@ -720,6 +741,9 @@ pub fn diagnose_with(
                 .filter_map(|v| {
                     let mut st: Vec<Vec<f64>> =
                         st.iter().map(|t| ctx.extend(&problem, &v, t)).collect();
+                    if v.has(Effect::Adhesion) {
+                        st.extend(ctx.snap_start(&problem, nom, &v, fan));
+                    }
                     st.dedup();
                     fit_model(&problem, &v, &st, refit_opts, fan)
                 })
@@ -1348,6 +1372,42 @@ struct StartContext {
     resonance_guess_hz: f64,
     /// The nominal fit's θ: a blunted tip starts from it, not from the swapped tip's start.
     nominal_theta: Vec<f64>,
+    /// An adhesive snap-in on the approach (`find_snap_in`), as an adhesion start.
+    snap_in: Option<SnapIn>,
+}
+
+/// An adhesion start read off a snap-in: the force it jumps by, and where the twin's
+/// contact point must be for its first contact to fall on the snap. The nominal fit put its
+/// contact where the lever rises again, milliseconds later; an adhesive twin started there
+/// snaps in late, and a contact moving by whole samples has no gradient to lead a local fit
+/// to the snap (an independent simulator's adhesion was fitted at a quarter of its force
+/// so).
+struct SnapIn {
+    force_nn: f64,
+    /// The drive where the base crosses the contact point at the snap (between its sample
+    /// and the one before).
+    drive_at_snap: f64,
+    /// The contact point less gain × drive where the nominal fit first touches: the offset
+    /// between the base and gain × drive (the actuator's lag), in nm.
+    offset_nm: f64,
+    /// +1 where the base rises toward the surface on the approach, −1 where it falls.
+    approach_sign: f64,
+}
+
+impl SnapIn {
+    /// θ's contact coordinate that puts the first contact on the snap at gain `gain`, with
+    /// the surface `ahead_nm` beyond the base there.
+    fn contact_theta(&self, gain: f64, ahead_nm: f64) -> f64 {
+        (gain * self.drive_at_snap + self.offset_nm + self.approach_sign * ahead_nm)
+            / model::ZC_SCALE_NM
+    }
+}
+
+/// The start of a long-range adhesion's decay length for a pull-off force `force_nn`, nm:
+/// 0.7 × the lever's deflection at that force, so that the pull stiffens faster than the
+/// lever near the surface and snaps the tip in, as a pull that reaches out is seen to.
+fn long_range_start_nm(force_nn: f64, problem: &Problem) -> f64 {
+    (0.7 * force_nn / problem.spring_constant_n_per_m).clamp(0.2, 50.0)
 }
 
 impl StartContext {
@@ -1358,6 +1418,7 @@ impl StartContext {
         white_nom: &[f64],
         base: f64,
         phases: &[Phase],
+        snap: Option<usize>,
     ) -> Self {
         let y = &problem.deflection_v;
         let fs = problem.fs_hz;
@@ -1415,6 +1476,25 @@ impl StartContext {
             neck_travel_nm,
             resonance_guess_hz: guess.min(0.45 * fs),
             nominal_theta: nom.theta.clone(),
+            snap_in: snap.and_then(|k| {
+                let first = nom.eval.sim.indentation_m.iter().position(|&h| h > 0.0)?;
+                let mut after: Vec<f64> = y[k..(k + 5).min(y.len())].to_vec();
+                after.sort_by(f64::total_cmp);
+                let drop_v = base - after[after.len() / 2];
+                // Between samples, where the base crosses the contact point.
+                let mid = |i: usize| 0.5 * (problem.drive[i.max(1) - 1] + problem.drive[i]);
+                let gain = problem.gain(&nom.theta);
+                Some(SnapIn {
+                    force_nn: drop_v * kc,
+                    drive_at_snap: mid(k),
+                    offset_nm: problem.contact_point_nm(&nom.theta) - gain * mid(first),
+                    approach_sign: if problem.drive[first] < problem.drive[k] {
+                        -1.0
+                    } else {
+                        1.0
+                    },
+                })
+            }),
         }
     }
 
@@ -1434,10 +1514,14 @@ impl StartContext {
                 t.extend_from_slice(&th[o..o + plain.params_of(e).len()]);
             }
             match e {
-                Effect::Adhesion if spec.adhesion_neck => {
+                Effect::Adhesion if spec.adhesion == AdhesionForm::Neck => {
                     let length = self.neck_travel_nm.max(1.0);
                     let stiffness = 0.02 * problem.spring_constant_n_per_m;
                     t.extend([length.ln(), stiffness.ln()]);
+                }
+                Effect::Adhesion if spec.adhesion == AdhesionForm::LongRange => {
+                    let force_nn = plain.offset_of(e).map_or(0.1, |o| th[o].exp());
+                    t.push(long_range_start_nm(force_nn, problem).ln());
                 }
                 Effect::ThermalDrift if spec.drift == DriftForm::Surface => t.extend([0.0, 0.0]),
                 Effect::InstrumentResonance if spec.resonance == ResonanceForm::Peaking => {
@@ -1486,6 +1570,57 @@ impl StartContext {
             }
         }
         t
+    }
+
+    /// A start of `spec`, a single adhesion in any form, with the twin's first contact on the
+    /// snap-in (`None` without one). The contact point is held there while the rest is
+    /// refitted to the moved contact: left free from a start whose contact curve no longer
+    /// fits, a fit moved it back (the smooth curve pulls it, and the snap, moving by whole
+    /// samples, shows no gradient to hold it). The gain, which the nominal fit bent to
+    /// mimic the adhesion, is refitted first; as it sets the sample at which the base
+    /// reaches the contact point, the contact point is then put back on the snap and both
+    /// are held for a second refit. A long-range pull snaps the tip in ahead of the surface,
+    /// so its surface is put that much beyond the snap.
+    fn snap_start(
+        &self,
+        problem: &Problem,
+        nom: &Fitted,
+        spec: &ModelSpec,
+        fan: &dyn Fan,
+    ) -> Option<Vec<f64>> {
+        let s = self.snap_in.as_ref()?;
+        let mut t = nom.theta.clone();
+        t.push(s.force_nn.max(0.05).ln());
+        let mut t = self.extend(problem, spec, &t);
+        // The lever snaps where a long-range pull's balance is lost: a gap of
+        // λ·(1 + ln(F/(λK))) short of the surface.
+        let ahead_nm = match spec.adhesion {
+            AdhesionForm::LongRange => {
+                let o = spec.offset_of(Effect::Adhesion)?;
+                let (f, lambda) = (t[o].exp(), t[o + 1].exp());
+                let k = problem.spring_constant_n_per_m;
+                lambda * (1.0 + (f / (lambda * k)).ln().max(0.0))
+            }
+            _ => 0.0,
+        };
+        let lag = spec.actuator_lag();
+        let opts = FitOptions {
+            max_iterations: 20,
+            max_step: 1.0,
+        };
+        // Refits with the parameters from `from` on free (the contact point's is 1).
+        let refit = |t: Vec<f64>, from: usize| -> Vec<f64> {
+            let free: Vec<usize> = (from..spec.n_nonlinear())
+                .filter(|&i| i != 1 && model::frees_parameter(i, lag, &t, true))
+                .collect();
+            fit::fit_params(problem, spec, &t, &free, opts, None, fan)
+                .map(|f| f.theta)
+                .unwrap_or(t)
+        };
+        t[1] = s.contact_theta(problem.gain(&t), ahead_nm);
+        let mut t = refit(t, 0);
+        t[1] = s.contact_theta(problem.gain(&t), ahead_nm);
+        Some(refit(t, 2))
     }
 
     /// Start vectors (full θ) of the single-effect model of `e`, from the nominal fit. `fan`
@@ -1582,7 +1717,11 @@ impl StartContext {
                 );
                 out
             }
-            Effect::Adhesion => vec![with(&[(0.5 * self.pull_off_nn).max(0.05).ln()])],
+            Effect::Adhesion => {
+                let mut st = vec![with(&[(0.5 * self.pull_off_nn).max(0.05).ln()])];
+                st.extend(self.snap_start(problem, nom, &nom.spec.with(&[e]), fan));
+                st
+            }
             Effect::SubstrateEffect => [3.0, 10.0]
                 .iter()
                 .map(|&m| with(&[(m * self.max_indentation_nm).ln()]))
@@ -1634,7 +1773,9 @@ impl StartContext {
 #[cfg(test)]
 mod tests {
     use super::corpus::{noise_free, nominal_twin, protocol_drive, simulate, simulate_with_truth};
-    use super::{diagnose, split_train_held, BasePosition, DiagnoseOptions, Diagnosis, Verdict};
+    use super::{
+        diagnose, find_snap_in, split_train_held, BasePosition, DiagnoseOptions, Diagnosis, Verdict,
+    };
     use crate::recording::Drive;
     use crate::twin::actuator::BoucWen;
     use crate::twin::detector::Mains;
@@ -1821,6 +1962,73 @@ mod tests {
         assert!(improvement < 0.3, "NRMSE improved by {improvement}");
         assert!(f.after_at_floor, "{f:?}, {:?}", d.after);
         assert!(rms(&d.model_after_v, &clean) < 0.3 * rms(&d.model_before_v, &clean));
+    }
+
+    /// A snap-in is where the free lever is first pulled 6 σ below its level and stays
+    /// down; a spike of noise as deep is not one, nor is a lever that never dips.
+    #[test]
+    fn a_snap_in_is_where_the_lever_is_pulled_down_and_stays() {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, StandardNormal};
+        let mut rng = rand::rngs::StdRng::seed_from_u64(7);
+        let sigma = 1e-3;
+        let (snap, contact) = (2000, 2400);
+        let free: Vec<f64> = (0..3000)
+            .map(|_| {
+                let z: f64 = StandardNormal.sample(&mut rng);
+                sigma * z
+            })
+            .collect();
+        // Pulled 8 σ down at the snap, back to the free level 200 samples later, pushed up
+        // from the contact on.
+        let lever = |k: usize| match k {
+            k if k < snap => 0.0,
+            k if k < snap + 200 => -8.0 * sigma * (1.0 - (k - snap) as f64 / 200.0),
+            k if k < contact => 0.0,
+            k => 1e-4 * (k - contact) as f64,
+        };
+        let y: Vec<f64> = free.iter().enumerate().map(|(k, n)| n + lever(k)).collect();
+        assert_eq!(find_snap_in(&y, contact, 0.0, sigma), Some(snap));
+        let mut spiked = free.clone();
+        spiked[1900] = -10.0 * sigma;
+        assert_eq!(find_snap_in(&spiked, contact, 0.0, sigma), None);
+        assert_eq!(find_snap_in(&free, contact, 0.0, sigma), None);
+    }
+
+    /// An adhesion that reaches out of contact snaps the tip in ahead of the surface: it is
+    /// named, fitted in its long-range form and its pull-off force recovered, and the floor
+    /// is measured on the free lever before the snap, not across its dip.
+    #[test]
+    fn a_long_range_adhesion_is_named_with_its_force() {
+        let mut twin = nominal_twin(13);
+        let (force_nn, range_nm) = (0.5, 3.0);
+        twin.sample.adhesion_nn = Some(force_nn);
+        twin.sample.adhesion_range_nm = Some(range_nm);
+        let sigma = twin.detector.white_noise_v;
+        let d = diagnosed(&twin, 5000.0);
+        assert_eq!(d.verdict, Verdict::Mismatch);
+        assert_eq!(d.effects[0].id, "adhesion");
+        assert!(d.effects[0].significant);
+        let param = |name: &str| {
+            d.effects[0]
+                .params
+                .iter()
+                .find(|p| p.name == name)
+                .unwrap_or_else(|| panic!("no {name} in {:?}", d.effects[0].params))
+        };
+        let f = param("pull_off_force_nn");
+        assert!((f.value - force_nn).abs() < 0.1 * force_nn, "{f:?}");
+        let lambda = param("range_nm");
+        assert!(
+            (lambda.value - range_nm).abs() < 0.3 * range_nm,
+            "{lambda:?}"
+        );
+        assert!(
+            (d.noise.sigma_v - sigma).abs() < 0.1 * sigma,
+            "floor {} V, noise {sigma} V",
+            d.noise.sigma_v
+        );
+        assert!(d.against_floor.after_at_floor, "{:?}", d.against_floor);
     }
 
     /// A third held out, a held block starting at the anchor, and around each event every

@@ -84,7 +84,7 @@ impl Effect {
                 "a resonance within the band (a scanner mode; in contact a cantilever mode looks the same)"
             }
             Effect::Adhesion => {
-                "tip–sample adhesion (DMT): a pull-off on retract, or an adhesive neck that holds the tip past it"
+                "tip–sample adhesion (DMT): a pull-off on retract, an adhesive neck that holds the tip past it, or a pull reaching out that snaps it in"
             }
             Effect::TipGeometry => {
                 "a tip shape other than the one declared: the other pure shape, or a blunted (sphere-capped) cone"
@@ -183,10 +183,10 @@ pub struct ModelSpec {
     /// Prony terms of the nominal material ([`DEFAULT_NOMINAL_TERMS`]).
     pub terms: usize,
     pub effects: Vec<Effect>,
-    /// `adhesion` with an adhesive neck that holds the tip past the DMT pull-off (two more
-    /// parameters: the neck's length and stiffness). Fitted beside the plain DMT pull-off
-    /// and kept when it wins on the information criterion.
-    pub adhesion_neck: bool,
+    /// Which adhesion `adhesion` is: the plain DMT pull-off, or with a neck or a long-range
+    /// pull beside it. The forms are fitted side by side and the one that wins on the
+    /// information criterion is kept.
+    pub adhesion: AdhesionForm,
     /// What `thermal_drift` moves, and how.
     pub drift: DriftForm,
     /// Which other tip `tip_geometry` puts on.
@@ -260,6 +260,24 @@ pub enum DriftForm {
     /// The surface height drifts along a parabola (rate and curvature, fitted in the twin).
     Surface,
 }
+
+/// The forms of `adhesion`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum AdhesionForm {
+    /// DMT: a constant pull while in contact, none outside (one parameter, the pull-off
+    /// force).
+    #[default]
+    Dmt,
+    /// An adhesive neck that holds the tip past the pull-off (two more parameters: the
+    /// neck's length and stiffness).
+    Neck,
+    /// The pull reaches out of contact, decaying over a length (one more parameter): the
+    /// tip snaps in ahead of the surface on approach and jumps clear at the pull-off.
+    LongRange,
+}
+
+/// The parameters `adhesion` has with a long-range pull.
+const ADHESION_RANGE_NAMES: &[(&str, &str)] = &[("pull_off_force_nn", "nN"), ("range_nm", "nm")];
 
 /// The parameters `adhesion` has with a neck.
 const ADHESION_NECK_NAMES: &[(&str, &str)] = &[
@@ -490,7 +508,7 @@ impl ModelSpec {
         Self {
             terms,
             effects: vec![],
-            adhesion_neck: false,
+            adhesion: AdhesionForm::Dmt,
             drift: DriftForm::Deflection,
             tip: TipForm::Swap,
             nonlinearity: NonlinearityForm::Both,
@@ -536,8 +554,9 @@ impl ModelSpec {
         }
         let mut out = vec![self];
         let first = out[0].clone();
-        if first.has(Effect::Adhesion) && !first.adhesion_neck {
-            fork(&mut out, &[true], |s, f| s.adhesion_neck = f);
+        if first.has(Effect::Adhesion) && first.adhesion == AdhesionForm::Dmt {
+            let reaching = [AdhesionForm::Neck, AdhesionForm::LongRange];
+            fork(&mut out, &reaching, |s, f| s.adhesion = f);
         }
         if first.has(Effect::TipGeometry) && first.tip == TipForm::Swap {
             fork(&mut out, &[TipForm::Blunted], |s, f| s.tip = f);
@@ -565,7 +584,7 @@ impl ModelSpec {
         effects.extend(&b.effects);
         let from = |e: Effect| if a.has(e) { a } else { b };
         ModelSpec {
-            adhesion_neck: from(Effect::Adhesion).adhesion_neck,
+            adhesion: from(Effect::Adhesion).adhesion,
             drift: from(Effect::ThermalDrift).drift,
             tip: from(Effect::TipGeometry).tip,
             nonlinearity: from(Effect::DetectorNonlinearity).nonlinearity,
@@ -577,8 +596,10 @@ impl ModelSpec {
 
     /// Names and units of effect `e`'s nonlinear parameters in this model, in θ order.
     pub fn params_of(&self, e: Effect) -> &'static [(&'static str, &'static str)] {
-        if e == Effect::Adhesion && self.adhesion_neck {
+        if e == Effect::Adhesion && self.adhesion == AdhesionForm::Neck {
             ADHESION_NECK_NAMES
+        } else if e == Effect::Adhesion && self.adhesion == AdhesionForm::LongRange {
+            ADHESION_RANGE_NAMES
         } else if e == Effect::ThermalDrift && self.drift == DriftForm::Surface {
             SURFACE_DRIFT_NAMES
         } else if e == Effect::TipGeometry && self.tip == TipForm::Blunted {
@@ -897,14 +918,17 @@ impl Problem {
                 poisson_ratio: self.poisson_ratio,
                 contact_point_nm: self.contact_point_nm(th),
                 adhesion_nn: p(Effect::Adhesion, 0).map(f64::exp),
-                neck: spec
-                    .adhesion_neck
+                neck: (spec.adhesion == AdhesionForm::Neck)
                     .then(|| p(Effect::Adhesion, 1).zip(p(Effect::Adhesion, 2)))
                     .flatten()
                     .map(|(l, k)| AdhesiveNeck {
                         length_nm: l.exp(),
                         stiffness_n_per_m: k.exp(),
                     }),
+                adhesion_range_nm: (spec.adhesion == AdhesionForm::LongRange)
+                    .then(|| p(Effect::Adhesion, 1))
+                    .flatten()
+                    .map(f64::exp),
                 thickness_nm: p(Effect::SubstrateEffect, 0).map(f64::exp),
                 surface_drift_nm_per_s: (spec.drift == DriftForm::Surface)
                     .then(|| p(Effect::ThermalDrift, 0))
@@ -1415,20 +1439,26 @@ mod tests {
         assert_eq!(mains.len(), 2);
         assert!(!mains[0].mains_harmonics && mains[1].mains_harmonics);
         let both = forms(&[Effect::Adhesion, Effect::TipGeometry]);
-        assert_eq!(both.len(), 4);
+        assert_eq!(both.len(), 6);
         assert!(both
             .iter()
-            .any(|s| s.adhesion_neck && s.tip == TipForm::Blunted));
+            .any(|s| s.adhesion == AdhesionForm::Neck && s.tip == TipForm::Blunted));
+        let adhesion = forms(&[Effect::Adhesion]);
+        let kinds: Vec<AdhesionForm> = adhesion.iter().map(|s| s.adhesion).collect();
+        use AdhesionForm::{Dmt, LongRange, Neck};
+        assert_eq!(kinds, [Dmt, Neck, LongRange]);
+        let counts: Vec<usize> = adhesion.iter().map(|s| s.n_nonlinear()).collect();
+        assert_eq!([counts[1] - counts[0], counts[2] - counts[0]], [2, 1]);
         // A form already chosen is not forked again.
         assert_eq!(drift[2].clone().variants().len(), 1);
-        let pair = ModelSpec::pair_of(&drift[2], &both[3]);
+        let pair = ModelSpec::pair_of(&drift[2], &both[4]);
         assert_eq!(
             pair.effects,
             [Effect::ThermalDrift, Effect::Adhesion, Effect::TipGeometry]
         );
         assert_eq!(
-            (pair.drift, pair.adhesion_neck, pair.tip),
-            (DriftForm::Surface, true, TipForm::Blunted)
+            (pair.drift, pair.adhesion, pair.tip),
+            (DriftForm::Surface, AdhesionForm::Neck, TipForm::Blunted)
         );
     }
 }

@@ -111,6 +111,13 @@ pub struct SampleConfig {
     /// the tip lets go at the pull-off).
     #[serde(default)]
     pub neck: Option<AdhesiveNeck>,
+    /// Decay length of the adhesion's long-range part, nm (needs `adhesion_nn`; absent: the
+    /// attraction acts only in contact, as DMT has it). Out of contact the surface then
+    /// pulls the tip with `adhesion_nn·e^(−s/λ)` at separation `s` (van der Waals, a water
+    /// film, charge), and where that pull stiffens faster than the lever the tip snaps in
+    /// ahead of the surface on approach and jumps clear of it at the pull-off.
+    #[serde(default)]
+    pub adhesion_range_nm: Option<f64>,
     /// Thickness of a film bonded to a rigid substrate, nm (absent: half-space).
     #[serde(default)]
     pub thickness_nm: Option<f64>,
@@ -275,6 +282,24 @@ impl TwinConfig {
                     path: p("sample.neck"),
                     message: "an adhesive neck needs `sample.adhesion_nn` (the force it starts at)"
                         .into(),
+                });
+            }
+        }
+        if let Some(l) = self.sample.adhesion_range_nm {
+            let message = if !(l.is_finite() && l > 0.0) {
+                Some(format!("must be a positive finite number (got {l})"))
+            } else if self.sample.adhesion_nn.is_none() {
+                Some(
+                    "a long-range adhesion needs `sample.adhesion_nn` (its force at contact)"
+                        .into(),
+                )
+            } else {
+                None
+            };
+            if let Some(message) = message {
+                issues.push(ConfigIssue {
+                    path: p("sample.adhesion_range_nm"),
+                    message,
                 });
             }
         }
@@ -622,10 +647,27 @@ impl Twin {
             )
         };
         let d_lo = -f_net_n / k_si;
+        // Out of contact, where the adhesion reaches out: the free lever against the
+        // long-range pull. The pull reaches from the surface as it is, still recovering from
+        // an earlier contact at the depth its memory `beta` puts it.
+        let free = s.adhesion_range_nm.and_then(|_| {
+            let depth_m = if beta > 0.0 {
+                contact.indentation_from_y(beta)
+            } else {
+                0.0
+            };
+            self.long_range_hold(gap_m - depth_m, f_ext_n)
+        });
+        // Pulled onto the surface with the whole adhesion, the tip indents it where the
+        // material, still recovering from an earlier contact, lets it.
+        let holds_at_pull_off = || g_and_slope(d_lo).0 >= 0.0 && gap_m - d_lo > 0.0;
         let touching = if self.in_contact {
-            g_and_slope(d_lo).0 >= 0.0 && gap_m - d_lo > 0.0
+            holds_at_pull_off()
         } else {
-            gap_m > 0.0 && contact.y_from_indentation(gap_m) > beta
+            match free {
+                Some(FreeLever::SnapsIn) => holds_at_pull_off(),
+                _ => gap_m > 0.0 && contact.y_from_indentation(gap_m) > beta,
+            }
         };
         let (d_m, u, share) = if touching {
             // Two or three Newton steps from the previous solution are what keep the twin far
@@ -638,6 +680,13 @@ impl Twin {
             (d, unfilmed(cf * (k_si * d + f_net_n), c), share)
         } else if let Some(d) = self.neck_hold(gap_m, d_lo, commit) {
             (d, 0.0, 1.0)
+        } else if let Some(free) = free {
+            match free {
+                FreeLever::Balanced { d_m, share } => (d_m, 0.0, share),
+                // No balance off the surface, yet no contact either (the surface has not
+                // recovered to the tip): the tip rests on it, pulled with the whole pull.
+                FreeLever::SnapsIn => (d_lo, 0.0, 1.0),
+            }
         } else {
             (f_ext_n / k_si, 0.0, 1.0)
         };
@@ -650,6 +699,36 @@ impl Twin {
             self.last_d_m = d_m;
         }
         (d_m * 1e9, share)
+    }
+
+    /// The free lever's balance against a long-range adhesion (`adhesion_range_nm`) at base
+    /// gap `gap_m` to the surface (negative: short of it) and external force `f_ext_n`;
+    /// `None` without a long-range adhesion.
+    ///
+    /// At separation `s = d − gap ≥ 0` the lever balances `K·d = F_ext − F_adh·e^(−s/λ)`.
+    /// `q(s) = K·(gap + s) − F_ext + F_adh·e^(−s/λ)` is convex, falling while the pull
+    /// stiffens faster than the lever (`F_adh/λ·e^(−s/λ) > K`) and rising after: the stable
+    /// balance is its larger root, which exists while `q` at its lowest point is ≤ 0.
+    fn long_range_hold(&self, gap_m: f64, f_ext_n: f64) -> Option<FreeLever> {
+        let s = &self.cfg.sample;
+        let lambda = s.adhesion_range_nm? * 1e-9;
+        let f = s.adhesion_nn.unwrap_or(0.0) * 1e-9;
+        let k = self.cfg.cantilever.spring_constant_n_per_m;
+        let q = |x: f64| k * (gap_m + x) - f_ext_n + f * (-x / lambda).exp();
+        let q_slope = |x: f64| k - f / lambda * (-x / lambda).exp();
+        let lowest = (lambda * (f / (lambda * k)).ln()).max(0.0);
+        if q(lowest) > 0.0 {
+            return Some(FreeLever::SnapsIn);
+        }
+        // q(x) ≥ K·(gap + x) − F_ext, which is ≥ 0 from x = F_ext/K − gap on.
+        let hi = (f_ext_n / k - gap_m).max(lowest);
+        let last = (self.last_d_m - gap_m).clamp(lowest, hi);
+        let tol = 1e-14 * (1.0 + gap_m.abs());
+        let x = decreasing_root(|x| (-q(x), -q_slope(x)), (lowest, hi), last, tol, 60);
+        Some(FreeLever::Balanced {
+            d_m: gap_m + x,
+            share: k / q_slope(x).max(k * 1e-6),
+        })
     }
 
     /// Deflection (m) while an adhesive neck holds the tip out of contact, or `None` when no
@@ -678,6 +757,16 @@ impl Twin {
         }
         holds.then_some(d)
     }
+}
+
+/// The free lever against a long-range adhesion ([`SampleConfig::adhesion_range_nm`]).
+#[derive(Debug, Clone, Copy)]
+enum FreeLever {
+    /// It balances the pull off the surface at deflection `d_m` (m), and takes `share` of
+    /// an external force (`K·∂d/∂F_ext`).
+    Balanced { d_m: f64, share: f64 },
+    /// No balance off the surface: the tip snaps in.
+    SnapsIn,
 }
 
 /// The base's velocity at the newest of three consecutive positions (nm/s): the

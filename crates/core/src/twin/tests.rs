@@ -29,6 +29,7 @@ fn base_config() -> TwinConfig {
             contact_point_nm: 100.0,
             adhesion_nn: None,
             neck: None,
+            adhesion_range_nm: None,
             thickness_nm: None,
             surface_drift_nm_per_s: None,
             surface_drift_curvature_nm_per_s2: None,
@@ -298,4 +299,75 @@ fn an_absurd_detector_delay_is_an_error() {
             "{bad}: {issues:?}"
         );
     }
+}
+
+/// A long-range adhesion snaps the tip in ahead of the surface, where the pull
+/// `F·e^(−s/λ)` stiffens faster than the lever: at a gap of `λ·(1 + ln(F/(λK)))`, onto
+/// the surface with nearly the whole pull. On the way back the tip lets go at the DMT
+/// pull-off, `K·d = −F`, and jumps clear: to the lever's balance against the pull, a
+/// fraction of it, which falls away as the base retracts.
+#[test]
+fn long_range_adhesion_snaps_in_ahead_of_the_surface() {
+    let mut cfg = base_config();
+    let (f_nn, lambda_nm) = (2.0, 5.0);
+    cfg.sample.adhesion_nn = Some(f_nn);
+    cfg.sample.adhesion_range_nm = Some(lambda_nm);
+    assert!(cfg.validate("").is_empty());
+    let k = cfg.cantilever.spring_constant_n_per_m;
+    let snap_gap_nm = lambda_nm * (1.0 + (f_nn / (lambda_nm * k)).ln());
+    let step_nm = 150.0 / 4000.0;
+    let mut twin = Twin::new(&cfg, 8000.0);
+    let n = 4000;
+    let (mut snap, mut release, mut far) = (None, None, None);
+    let mut was_in = false;
+    for i in 0..=2 * n {
+        let base_nm = 150.0 * (1.0 - ((i as f64 - n as f64) / n as f64).abs()); // up and back
+        let s = twin.step(base_nm / 100.0);
+        let d = s.truth.deflection_nm;
+        if s.truth.in_contact && !was_in && snap.is_none() {
+            snap = Some((base_nm, d));
+        }
+        if !s.truth.in_contact && was_in && release.is_none() {
+            release = Some((base_nm, d));
+        }
+        if (base_nm - 50.0).abs() < 0.5 * step_nm && i > n {
+            far = Some((base_nm, d));
+        }
+        was_in = s.truth.in_contact;
+    }
+    // In, within a base step of the analytic gap, pulled by most of F (the contact
+    // pushes back a little at once).
+    let (at, d_in) = snap.expect("never snapped in");
+    assert!(
+        (at - (100.0 - snap_gap_nm)).abs() <= step_nm,
+        "snapped at {at} nm"
+    );
+    let pull_off_nm = -f_nn / k;
+    assert!(d_in < 0.8 * pull_off_nm && d_in > pull_off_nm, "{d_in} nm");
+    // Out at the DMT pull-off (one step past it), landing where the lever balances the
+    // pull: K·d = −F·e^(−(d − gap)/λ).
+    let (at, d_out) = release.expect("never let go");
+    assert!(
+        (at - (100.0 + pull_off_nm)).abs() <= 2.0 * step_nm,
+        "let go at {at} nm"
+    );
+    let gap = at - 100.0;
+    let balance = k * d_out + f_nn * (-(d_out - gap) / lambda_nm).exp();
+    assert!(
+        balance.abs() < 1e-9,
+        "out of balance by {balance} nN at d = {d_out} nm"
+    );
+    assert!(d_out > 0.1 * pull_off_nm, "did not jump clear: {d_out} nm");
+    // 50 nm short of the surface the pull has fallen by e^(−10), and still balances.
+    let (at, d_far) = far.expect("never back at 50 nm");
+    let expected = -f_nn / k * (-(d_far - (at - 100.0)) / lambda_nm).exp();
+    assert!(expected.abs() < 2e-3, "{expected}");
+    assert!(
+        (d_far - expected).abs() < 1e-6 * expected.abs(),
+        "{d_far} nm, not {expected}"
+    );
+    let mut bad = cfg.clone();
+    bad.sample.adhesion_nn = None;
+    let issues = bad.validate("");
+    assert!(issues.iter().any(|i| i.path == "sample.adhesion_range_nm"));
 }
