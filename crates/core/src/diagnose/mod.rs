@@ -679,7 +679,9 @@ pub fn diagnose_with(
     };
     // Steps 2 to 4 (locate, screen, refit each candidate) start from the nominal fit; they
     // run again if the refits uncover a clearly better nominal fit (below).
-    let examine = |nom: &Fitted, only: Option<&[Effect]>| -> Examined {
+    // `again`: a second round, from a better nominal fit, with the candidates that trade
+    // against the actuator's lag and those refitted before.
+    let examine = |nom: &Fitted, again: Option<(&[Effect], &[Effect])>| -> Examined {
         // 2. Locate, on the nominal residual.
         let white_nom = whitened(&problem, nom);
         let locations_before = locations(&problem, &white_nom, &phases);
@@ -710,11 +712,19 @@ pub fn diagnose_with(
         // 4. Full refits of the strongest, then pairs.
         let distorted = nom.eval.chi2_train / n_tr > 1.2;
         let mut singles: Vec<(Effect, Fitted)> = vec![];
-        let to_refit: Vec<usize> = match only {
-            Some(only) => (0..screened.len())
-                .filter(|&i| only.contains(&screened[i].0))
+        let chosen = chosen_for_refit(&screened, &locations_before, opts.full_refits, penalty_of);
+        let to_refit: Vec<usize> = match again {
+            // The trading candidates, and those the screening against the better nominal fit
+            // picks that were not refitted before: the first screening, against a nominal
+            // fit stuck in a worse basin, ranked first the candidates that take up its misfit
+            // (a detector's nonlinearity, fifth behind four of them, was never refitted).
+            Some((trading, before)) => (0..screened.len())
+                .filter(|&i| {
+                    let e = screened[i].0;
+                    trading.contains(&e) || (chosen.contains(&i) && !before.contains(&e))
+                })
                 .collect(),
-            None => chosen_for_refit(&screened, &locations_before, opts.full_refits, penalty_of),
+            None => chosen,
         };
         // The refits are independent too. Each form of a candidate (`ModelSpec::variants`) is
         // fitted; the one with the lower BIC stands for the candidate (`bic`).
@@ -823,7 +833,8 @@ pub fn diagnose_with(
         if round > 0 || !clearly {
             break;
         }
-        let again = examine(&nom, Some(&model::TRADES_WITH_LAG));
+        let before: Vec<Effect> = ex.singles.iter().map(|(e, _)| *e).collect();
+        let again = examine(&nom, Some((&model::TRADES_WITH_LAG, &before)));
         ex.white_nom = again.white_nom;
         ex.locations_before = again.locations_before;
         // A candidate refitted in both rounds keeps the better refit; one refitted only now
