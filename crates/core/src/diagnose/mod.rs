@@ -56,6 +56,7 @@ use model::{
 const PEAKING_START_GAIN: f64 = 2.0;
 use noise::NoiseModel;
 use serde::Serialize;
+use std::sync::OnceLock;
 use thiserror::Error;
 
 /// The catalog of physics a nominal twin may have left out, by their exact report ids.
@@ -408,9 +409,16 @@ fn find_contact(y: &[f64]) -> Result<(usize, f64, f64), DiagnoseError> {
 fn find_snap_in(y: &[f64], contact: usize, base: f64, sigma: f64) -> Option<usize> {
     let contact = contact.min(y.len());
     let k = (contact - contact / 3..contact).find(|&k| y[k] < base - 6.0 * sigma)?;
-    let mut next: Vec<f64> = y[k..(k + 5).min(contact)].to_vec();
-    next.sort_by(f64::total_cmp);
-    (next.len() >= 3 && next[next.len() / 2] < base - 3.0 * sigma).then_some(k)
+    let held = &y[k..(k + 5).min(contact)];
+    (held.len() >= 3 && level_from(held) < base - 3.0 * sigma).then_some(k)
+}
+
+/// The level a lever holds over a few samples: their median, which one noisy sample does
+/// not move.
+fn level_from(samples: &[f64]) -> f64 {
+    let mut v = samples.to_vec();
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
 }
 
 /// A first material from the recording's (u, y) by the offline fitter, or a static Hertz
@@ -1385,6 +1393,9 @@ struct StartContext {
     nominal_theta: Vec<f64>,
     /// An adhesive snap-in on the approach (`find_snap_in`), as an adhesion start.
     snap_in: Option<SnapIn>,
+    /// The plain adhesion's snap start from this context's nominal fit, once fitted: the
+    /// screening asks for it, and the refit again (`snap_start`).
+    plain_snap_start: OnceLock<Option<Vec<f64>>>,
 }
 
 /// An adhesion start read off a snap-in: the force it jumps by, and where the twin's
@@ -1487,11 +1498,10 @@ impl StartContext {
             neck_travel_nm,
             resonance_guess_hz: guess.min(0.45 * fs),
             nominal_theta: nom.theta.clone(),
+            plain_snap_start: OnceLock::new(),
             snap_in: snap.and_then(|k| {
                 let first = nom.eval.sim.indentation_m.iter().position(|&h| h > 0.0)?;
-                let mut after: Vec<f64> = y[k..(k + 5).min(y.len())].to_vec();
-                after.sort_by(f64::total_cmp);
-                let drop_v = base - after[after.len() / 2];
+                let drop_v = base - level_from(&y[k..(k + 5).min(y.len())]);
                 // Between samples, where the base crosses the contact point.
                 let mid = |i: usize| 0.5 * (problem.drive[i.max(1) - 1] + problem.drive[i]);
                 let gain = problem.gain(&nom.theta);
@@ -1593,6 +1603,22 @@ impl StartContext {
     /// are held for a second refit. A long-range pull snaps the tip in ahead of the surface,
     /// so its surface is put that much beyond the snap.
     fn snap_start(
+        &self,
+        problem: &Problem,
+        nom: &Fitted,
+        spec: &ModelSpec,
+        fan: &dyn Fan,
+    ) -> Option<Vec<f64>> {
+        let fit = || self.fit_snap_start(problem, nom, spec, fan);
+        if *spec == spec.plain() && nom.theta == self.nominal_theta {
+            self.plain_snap_start.get_or_init(fit).clone()
+        } else {
+            fit()
+        }
+    }
+
+    /// [`StartContext::snap_start`], fitted.
+    fn fit_snap_start(
         &self,
         problem: &Problem,
         nom: &Fitted,
