@@ -93,7 +93,8 @@ pub struct Prepared {
     pub drive: Vec<f64>,
 }
 
-fn median(x: &mut [f64]) -> f64 {
+/// The median of `x`, which it sorts.
+pub(crate) fn median(x: &mut [f64]) -> f64 {
     x.sort_by(f64::total_cmp);
     x[x.len() / 2]
 }

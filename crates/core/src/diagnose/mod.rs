@@ -409,16 +409,8 @@ fn find_contact(y: &[f64]) -> Result<(usize, f64, f64), DiagnoseError> {
 fn find_snap_in(y: &[f64], contact: usize, base: f64, sigma: f64) -> Option<usize> {
     let contact = contact.min(y.len());
     let k = (contact - contact / 3..contact).find(|&k| y[k] < base - 6.0 * sigma)?;
-    let held = &y[k..(k + 5).min(contact)];
-    (held.len() >= 3 && level_from(held) < base - 3.0 * sigma).then_some(k)
-}
-
-/// The level a lever holds over a few samples: their median, which one noisy sample does
-/// not move.
-fn level_from(samples: &[f64]) -> f64 {
-    let mut v = samples.to_vec();
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
+    let mut held = y[k..(k + 5).min(contact)].to_vec();
+    (held.len() >= 3 && analysis::median(&mut held) < base - 3.0 * sigma).then_some(k)
 }
 
 /// A first material from the recording's (u, y) by the offline fitter, or a static Hertz
@@ -760,7 +752,7 @@ pub fn diagnose_with(
                     let mut st: Vec<Vec<f64>> =
                         st.iter().map(|t| ctx.extend(&problem, &v, t)).collect();
                     if v.has(Effect::Adhesion) {
-                        st.extend(ctx.snap_start(&problem, nom, &v, fan));
+                        st.extend(ctx.snap_start(&problem, &v, fan));
                     }
                     st.dedup();
                     fit_model(&problem, &v, &st, refit_opts, fan)
@@ -1393,8 +1385,7 @@ struct StartContext {
     nominal_theta: Vec<f64>,
     /// An adhesive snap-in on the approach (`find_snap_in`), as an adhesion start.
     snap_in: Option<SnapIn>,
-    /// The plain adhesion's snap start from this context's nominal fit, once fitted: the
-    /// screening asks for it, and the refit again (`snap_start`).
+    /// The plain adhesion's snap start, once fitted (`snap_start`).
     plain_snap_start: OnceLock<Option<Vec<f64>>>,
 }
 
@@ -1501,7 +1492,7 @@ impl StartContext {
             plain_snap_start: OnceLock::new(),
             snap_in: snap.and_then(|k| {
                 let first = nom.eval.sim.indentation_m.iter().position(|&h| h > 0.0)?;
-                let drop_v = base - level_from(&y[k..(k + 5).min(y.len())]);
+                let drop_v = base - analysis::median(&mut y[k..(k + 5).min(y.len())].to_vec());
                 // Between samples, where the base crosses the contact point.
                 let mid = |i: usize| 0.5 * (problem.drive[i.max(1) - 1] + problem.drive[i]);
                 let gain = problem.gain(&nom.theta);
@@ -1602,15 +1593,13 @@ impl StartContext {
     /// reaches the contact point, the contact point is then put back on the snap and both
     /// are held for a second refit. A long-range pull snaps the tip in ahead of the surface,
     /// so its surface is put that much beyond the snap.
-    fn snap_start(
-        &self,
-        problem: &Problem,
-        nom: &Fitted,
-        spec: &ModelSpec,
-        fan: &dyn Fan,
-    ) -> Option<Vec<f64>> {
-        let fit = || self.fit_snap_start(problem, nom, spec, fan);
-        if *spec == spec.plain() && nom.theta == self.nominal_theta {
+    ///
+    /// It starts from this context's nominal fit whatever start `starts` is asked for: the
+    /// one start taken from the undistorted first estimate is the plain one. The plain
+    /// form's, asked for by the screening and again by the refit, is fitted once.
+    fn snap_start(&self, problem: &Problem, spec: &ModelSpec, fan: &dyn Fan) -> Option<Vec<f64>> {
+        let fit = || self.fit_snap_start(problem, spec, fan);
+        if *spec == spec.plain() {
             self.plain_snap_start.get_or_init(fit).clone()
         } else {
             fit()
@@ -1621,12 +1610,11 @@ impl StartContext {
     fn fit_snap_start(
         &self,
         problem: &Problem,
-        nom: &Fitted,
         spec: &ModelSpec,
         fan: &dyn Fan,
     ) -> Option<Vec<f64>> {
         let s = self.snap_in.as_ref()?;
-        let mut t = nom.theta.clone();
+        let mut t = self.nominal_theta.clone();
         t.push(s.force_nn.max(0.05).ln());
         let mut t = self.extend(problem, spec, &t);
         // The lever snaps where a long-range pull's balance is lost: a gap of
@@ -1756,7 +1744,7 @@ impl StartContext {
             }
             Effect::Adhesion => {
                 let mut st = vec![with(&[(0.5 * self.pull_off_nn).max(0.05).ln()])];
-                st.extend(self.snap_start(problem, nom, &nom.spec.with(&[e]), fan));
+                st.extend(self.snap_start(problem, &nom.spec.with(&[e]), fan));
                 st
             }
             Effect::SubstrateEffect => [3.0, 10.0]
