@@ -650,24 +650,31 @@ impl Twin {
         // Out of contact, where the adhesion reaches out: the free lever against the
         // long-range pull. The pull reaches from the surface as it is, still recovering from
         // an earlier contact at the depth its memory `beta` puts it.
-        let free = s.adhesion_range_nm.and_then(|_| {
-            let depth_m = if beta > 0.0 {
-                contact.indentation_from_y(beta)
-            } else {
-                0.0
-            };
-            self.long_range_hold(gap_m - depth_m, f_ext_n)
-        });
+        // It is asked for only where the tip is off the surface or leaving it, not on every
+        // step of a contact.
+        let free = || {
+            s.adhesion_range_nm.and_then(|_| {
+                let depth_m = if beta > 0.0 {
+                    contact.indentation_from_y(beta)
+                } else {
+                    0.0
+                };
+                self.long_range_hold(gap_m - depth_m, f_ext_n)
+            })
+        };
         // Pulled onto the surface with the whole adhesion, the tip indents it where the
         // material, still recovering from an earlier contact, lets it.
         let holds_at_pull_off = || g_and_slope(d_lo).0 >= 0.0 && gap_m - d_lo > 0.0;
-        let touching = if self.in_contact {
-            holds_at_pull_off()
+        let (touching, free) = if self.in_contact {
+            let holds = holds_at_pull_off();
+            (holds, if holds { None } else { free() })
         } else {
-            match free {
+            let free = free();
+            let touching = match free {
                 Some(FreeLever::SnapsIn) => holds_at_pull_off(),
                 _ => gap_m > 0.0 && contact.y_from_indentation(gap_m) > beta,
-            }
+            };
+            (touching, free)
         };
         let (d_m, u, share) = if touching {
             // Two or three Newton steps from the previous solution are what keep the twin far
