@@ -367,8 +367,8 @@ class Recording:
         self.N = N_SAMPLES
         self.T = self.N / self.fs
         # Internal oversampling. SIM_OS_FACTOR (added by viscoprobe, not by the author)
-        # overrides it: at 2x the simulator's own discretisation error was 0.27 sigma on a
-        # null recording, large enough to hide effects near the floor; 8x makes it small.
+        # overrides it: at 2x the simulator's own discretisation error is a systematic
+        # residual that can hide effects near the floor; 8x makes it small.
         self.os = int(os.environ.get("SIM_OS_FACTOR", 2 if self.fs < 10000 else 1))
         self.dt = 1.0 / (self.fs * self.os)
         self.t_out = np.arange(self.N) / self.fs
