@@ -15,6 +15,12 @@
 //!   sphere's `u = 3(1−ν²)P/(4√R)` and takes `y = Φ(h)`, with `Φ(h) = h^{3/2}` on the cap and
 //!   `Φ(h) = 3/(4√R)·G(a(h))` beyond it, `G = P/E*` the closed-form load; `Φ` is C¹ at `h_t`.
 //!
+//! * axisymmetric power-law profile `z = B·r^n` (Galin; Sneddon 1965): `h = k_n·B·a^n` and
+//!   `P = 2E*·n/(n+1)·k_n·B·a^{n+1}`, `k_n = √π·Γ(n/2 + 1)/Γ(n/2 + 1/2)`, so `y = h^m` with
+//!   `m = 1 + 1/n` and `u = (1−ν²)(n+1)/(2n)·(k_n·B)^{1/n}·P`. The sphere (`n = 2`,
+//!   `B = 1/(2R)`) and the cone (`n = 1`, `B = cot α`) are its special cases; between and
+//!   beyond them it describes a worn, flattened or sharpened tip by one exponent.
+//!
 //! With these, `J` is the Young's creep compliance of the material (1/Pa). Units: P in N,
 //! h in m, R in m; u comes out in N/√m (sphere, blunted cone) or N (cone), y in m^{3/2} or m².
 
@@ -46,6 +52,19 @@ pub enum TipGeometry {
     /// at `b` is `cos α` rather than the cone's `cot α`; hence `dh/da` is infinite just above
     /// `b`, and `a(h)` flat there, while `P(h)` and its first derivative stay continuous.)
     BluntedCone { radius_m: f64, half_angle_rad: f64 },
+    /// Axisymmetric profile `z = B·r^n` (metres): `exponent` n > 0, `coefficient_si` B in
+    /// m^(1−n). Serialized with `shape = "powerlaw"`. Indents as `P ∝ h^{1+1/n}`: a tip worn
+    /// flat (n > 2) is stiffer at shallow depth than its sphere, a sharpened one (n < 1)
+    /// softer than its cone.
+    PowerLaw { exponent: f64, coefficient_si: f64 },
+}
+
+impl TipGeometry {
+    /// `h = k_n·B·a^n` for the power-law profile: `k_n = √π·Γ(n/2 + 1)/Γ(n/2 + 1/2)` (2 for
+    /// the paraboloid, π/2 for the cone). The gamma function comes from `libm`: std has none.
+    pub fn power_law_depth_factor(n: f64) -> f64 {
+        std::f64::consts::PI.sqrt() * libm::tgamma(0.5 * n + 1.0) / libm::tgamma(0.5 * n + 0.5)
+    }
 }
 
 /// A contact transform: tip geometry plus the sample's Poisson ratio.
@@ -94,10 +113,18 @@ impl Contact {
             TipGeometry::Cone { half_angle_rad } => {
                 std::f64::consts::PI * nu / (2.0 * half_angle_rad.tan())
             }
+            TipGeometry::PowerLaw {
+                exponent: n,
+                coefficient_si: b,
+            } => {
+                let k = TipGeometry::power_law_depth_factor(n) * b;
+                nu * (n + 1.0) / (2.0 * n) * k.powf(1.0 / n)
+            }
         }
     }
 
-    /// Exponent of the indentation in `y = h^k`: 3/2 for a sphere, 2 for a cone.
+    /// Exponent of the indentation in `y = h^k`: 3/2 for a sphere, 2 for a cone, `1 + 1/n`
+    /// for a power-law profile.
     ///
     /// The blunted cone has no single exponent: this returns 3/2, the law of its spherical
     /// cap (exact below the transition depth `b²/R`, about 2 far above it). Callers that need
@@ -107,6 +134,7 @@ impl Contact {
         match self.tip {
             TipGeometry::Sphere { .. } | TipGeometry::BluntedCone { .. } => 1.5,
             TipGeometry::Cone { .. } => 2.0,
+            TipGeometry::PowerLaw { exponent, .. } => 1.0 + 1.0 / exponent,
         }
     }
 
@@ -130,7 +158,9 @@ impl Contact {
         match self.tip {
             TipGeometry::Sphere { .. } => hertz_y_and_slope(h_m).0,
             TipGeometry::Cone { .. } => h_m * h_m,
-            TipGeometry::BluntedCone { .. } => self.y_and_slope(h_m).0,
+            TipGeometry::BluntedCone { .. } | TipGeometry::PowerLaw { .. } => {
+                self.y_and_slope(h_m).0
+            }
         }
     }
 
@@ -144,7 +174,9 @@ impl Contact {
         match self.tip {
             TipGeometry::Sphere { .. } => 1.5 * h_m.sqrt(),
             TipGeometry::Cone { .. } => 2.0 * h_m,
-            TipGeometry::BluntedCone { .. } => self.y_and_slope(h_m).1,
+            TipGeometry::BluntedCone { .. } | TipGeometry::PowerLaw { .. } => {
+                self.y_and_slope(h_m).1
+            }
         }
     }
 
@@ -167,6 +199,15 @@ impl Contact {
                 } else {
                     let p = bc.at(bc.s_from_h(h_m).0);
                     (bc.y_scale * p.g, 2.0 * bc.y_scale * p.a)
+                }
+            }
+            TipGeometry::PowerLaw { exponent, .. } => {
+                if h_m <= 0.0 {
+                    (0.0, 0.0)
+                } else {
+                    let m = 1.0 + 1.0 / exponent;
+                    let y = h_m.powf(m);
+                    (y, m * y / h_m)
                 }
             }
             _ => (self.y_from_indentation(h_m), self.shape_slope(h_m)),
@@ -194,6 +235,7 @@ impl Contact {
                     bc.at(bc.s_from_g(g).0).h
                 }
             }
+            TipGeometry::PowerLaw { exponent, .. } => y.powf(exponent / (exponent + 1.0)),
         }
     }
 
@@ -781,6 +823,88 @@ mod tests {
         let c = Contact::blunted_cone(1e-6, 1.2);
         let text = toml::to_string(&c).unwrap();
         assert!(text.contains("shape = \"bluntedcone\""), "{text}");
+        assert_eq!(toml::from_str::<Contact>(&text).unwrap(), c);
+    }
+
+    /// The power-law profile with n = 2, B = 1/(2R) is the sphere and with n = 1, B = cot α
+    /// the cone: the same force factor and shape function at every depth.
+    #[test]
+    fn power_law_is_the_sphere_and_the_cone() {
+        let (r, alpha) = (1e-6, 0.35f64);
+        let pairs = [
+            (
+                Contact::sphere(r),
+                TipGeometry::PowerLaw {
+                    exponent: 2.0,
+                    coefficient_si: 1.0 / (2.0 * r),
+                },
+            ),
+            (
+                Contact::cone(alpha),
+                TipGeometry::PowerLaw {
+                    exponent: 1.0,
+                    coefficient_si: 1.0 / alpha.tan(),
+                },
+            ),
+        ];
+        for (pure, tip) in pairs {
+            let law = Contact { tip, ..pure };
+            let rel = |a: f64, b: f64| (a - b).abs() / b.abs();
+            assert!(
+                rel(law.force_factor(), pure.force_factor()) < 1e-12,
+                "{tip:?}"
+            );
+            for h in [1e-9, 3e-8, 2e-7] {
+                let (y, dy) = law.y_and_slope(h);
+                assert!(rel(y, pure.y_from_indentation(h)) < 1e-12, "{tip:?} at {h}");
+                assert!(rel(dy, pure.shape_slope(h)) < 1e-12, "{tip:?} at {h}");
+                assert!(rel(law.indentation_from_y(y), h) < 1e-12);
+            }
+        }
+    }
+
+    /// The power-law transform against Sneddon's integrals for the profile z = B·r^n,
+    /// computed by quadrature (x = sin φ takes out the edge singularity):
+    /// `h = ∫₀^{π/2} f'(a sin φ)·a dφ` and `P = 2E*·∫₀^{π/2} a²·sin²φ·f'(a sin φ) dφ`.
+    #[test]
+    fn power_law_matches_sneddon_quadrature() {
+        let (e, nu) = (2.0e6, 0.5);
+        let e_star = e / (1.0 - nu * nu);
+        for (n, b) in [(1.5, 3.0e2), (3.0, 4.0e12), (1.2, 5.0)] {
+            let c = Contact {
+                tip: TipGeometry::PowerLaw {
+                    exponent: n,
+                    coefficient_si: b,
+                },
+                poisson_ratio: nu,
+            };
+            let a: f64 = 120e-9;
+            let slope = |r: f64| n * b * r.powf(n - 1.0);
+            let steps = 200_000;
+            let dphi = std::f64::consts::FRAC_PI_2 / steps as f64;
+            let (mut h, mut p) = (0.0, 0.0);
+            for i in 0..steps {
+                let phi = (i as f64 + 0.5) * dphi;
+                let (s, f) = (phi.sin(), slope(a * phi.sin()));
+                h += a * f * dphi;
+                p += 2.0 * e_star * a * a * s * s * f * dphi;
+            }
+            let h_back = c.elastic_indentation(p, 1.0 / e);
+            assert!((h_back - h).abs() / h < 1e-6, "n {n}: {h_back} vs {h}");
+        }
+    }
+
+    #[test]
+    fn power_law_serde() {
+        let c = Contact {
+            tip: TipGeometry::PowerLaw {
+                exponent: 2.5,
+                coefficient_si: 7.0e9,
+            },
+            poisson_ratio: 0.5,
+        };
+        let text = toml::to_string(&c).unwrap();
+        assert!(text.contains("shape = \"powerlaw\""), "{text}");
         assert_eq!(toml::from_str::<Contact>(&text).unwrap(), c);
     }
 }

@@ -375,6 +375,8 @@ pub fn sidecar_for_twin(
         // The recording format declares spheres and cones: a blunted cone is declared by its
         // cap, as a user who trusts the tip's nominal radius would.
         TipConfig::BluntedCone { radius_nm, .. } => Tip::Sphere { radius_nm },
+        // A power-law profile is declared as the pure shape nearest it (see `declared_as`).
+        TipConfig::PowerLaw { .. } => t.tip.declared_as(),
     };
     Sidecar {
         format: FORMAT.to_string(),

@@ -462,6 +462,7 @@ fn tip_of(t: TipConfig) -> Tip {
         // The recording format declares spheres and cones: a blunted cone is declared by its
         // cap, as a user who trusts the tip's nominal radius would.
         TipConfig::BluntedCone { radius_nm, .. } => Tip::Sphere { radius_nm },
+        TipConfig::PowerLaw { .. } => t.declared_as(),
     }
 }
 

@@ -377,6 +377,7 @@ mod tests {
             fixed_columns: Default::default(),
             drive_spectrum: Default::default(),
             simulations: Default::default(),
+            tip_reference_depth_nm: 0.0,
         };
         // A start some way off: gain, contact point and material all wrong by a few %.
         let mut material = twin.sample.material.clone();

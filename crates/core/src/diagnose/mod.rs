@@ -571,6 +571,7 @@ pub fn diagnose_with(
         fixed_columns: Default::default(),
         drive_spectrum: Default::default(),
         simulations: Default::default(),
+        tip_reference_depth_nm: 0.0,
     };
 
     // 1. Nominal twin.
@@ -647,6 +648,15 @@ pub fn diagnose_with(
         problem.weigh_equally(noise.sigma_v);
         nom = fit_nominal(&problem)?;
     }
+    // A power-law tip carries the declared tip's force where the nominal twin indents
+    // deepest: its exponent then bends the load law about the depths the record has.
+    problem.tip_reference_depth_nm = nom
+        .eval
+        .sim
+        .indentation_m
+        .iter()
+        .fold(0.0f64, |a, &h| a.max(h))
+        * 1e9;
     let sims_nominal = problem.simulations();
     let phases = locate::phases(
         &drive,
@@ -701,7 +711,20 @@ pub fn diagnose_with(
             let e = candidates[k];
             let spec = nominal.with(&[e]);
             let st = ctx.starts(&problem, nom, e, fan);
-            screen(&problem, &spec, &st, &q, fan).map(|(c, th)| (e, nom.eval.chi2_train - c, th))
+            let plain = screen(&problem, &spec, &st, &q, fan);
+            // A tip is screened in its power-law form too, and stands for the better of the
+            // two; the plain form's θ is what the refits extend (`StartContext::extend`).
+            let c = match e {
+                Effect::TipGeometry => plain
+                    .as_ref()
+                    .map(|p| p.0)
+                    .into_iter()
+                    .chain(ctx.screen_power_law(&problem, nom, &q, fan))
+                    .reduce(f64::min),
+                _ => plain.as_ref().map(|p| p.0),
+            };
+            let th = plain.map_or_else(|| st.first().cloned(), |p| Some(p.1));
+            c.zip(th).map(|(c, th)| (e, nom.eval.chi2_train - c, th))
         })
         .into_iter()
         .flatten()
@@ -753,6 +776,9 @@ pub fn diagnose_with(
                         st.iter().map(|t| ctx.extend(&problem, &v, t)).collect();
                     if v.has(Effect::Adhesion) {
                         st.extend(ctx.snap_start(&problem, &v, fan));
+                    }
+                    if v.has(Effect::TipGeometry) && v.tip == TipForm::PowerLaw {
+                        st.extend(ctx.power_law_screened.get().cloned().flatten());
                     }
                     st.dedup();
                     fit_model(&problem, &v, &st, refit_opts, fan)
@@ -1387,6 +1413,8 @@ struct StartContext {
     snap_in: Option<SnapIn>,
     /// The plain adhesion's snap start, once fitted (`snap_start`).
     plain_snap_start: OnceLock<Option<Vec<f64>>>,
+    /// The power-law tip's screened θ (`screen_power_law`), a start of its refit.
+    power_law_screened: OnceLock<Option<Vec<f64>>>,
 }
 
 /// An adhesion start read off a snap-in: the force it jumps by, and where the twin's
@@ -1490,6 +1518,7 @@ impl StartContext {
             resonance_guess_hz: guess.min(0.45 * fs),
             nominal_theta: nom.theta.clone(),
             plain_snap_start: OnceLock::new(),
+            power_law_screened: OnceLock::new(),
             snap_in: snap.and_then(|k| {
                 let first = nom.eval.sim.indentation_m.iter().position(|&h| h > 0.0)?;
                 let drop_v = base - analysis::median(&mut y[k..(k + 5).min(y.len())].to_vec());
@@ -1539,6 +1568,18 @@ impl StartContext {
                 Effect::InstrumentResonance if spec.resonance == ResonanceForm::Peaking => {
                     t.push(PEAKING_START_GAIN.ln())
                 }
+                Effect::TipGeometry if spec.tip == TipForm::PowerLaw => {
+                    // The plain form swapped the declared shape for the other one: the
+                    // power law starts from the nominal fit at the other shape's exponent
+                    // (a power-law tip carries the declared force at the deepest
+                    // indentation whatever its exponent, so the compliances stay).
+                    let other = match problem.declared_tip {
+                        TipConfig::Cone { .. } => 2.0f64,
+                        _ => 1.0,
+                    };
+                    t[..plain.n_nominal()].copy_from_slice(&self.nominal_theta);
+                    t.push(other.ln());
+                }
                 Effect::TipGeometry if spec.tip == TipForm::Blunted => {
                     // From the nominal fit, its compliances rescaled to the same force at the
                     // deepest indentation, blunted at a third of that depth.
@@ -1582,6 +1623,37 @@ impl StartContext {
             }
         }
         t
+    }
+
+    /// The power-law tip screened from the nominal fit `nom`: its exponent alone fitted, from
+    /// a little either side of the declared one (the declared exponent is the nominal twin),
+    /// the nominal parameters held and their span projected out as for every candidate.
+    /// Returns the projected χ²; the θ is kept for the refit (`power_law_screened`).
+    fn screen_power_law(
+        &self,
+        problem: &Problem,
+        nom: &Fitted,
+        q: &nalgebra::DMatrix<f64>,
+        fan: &dyn Fan,
+    ) -> Option<f64> {
+        let spec = ModelSpec {
+            tip: TipForm::PowerLaw,
+            ..nom.spec.with(&[Effect::TipGeometry])
+        };
+        let n0 = TipForm::declared_exponent(problem.declared_tip);
+        let starts: Vec<Vec<f64>> = [0.8, 1.25]
+            .iter()
+            .map(|k| {
+                let mut t = nom.theta.clone();
+                t.push((k * n0).ln());
+                t
+            })
+            .collect();
+        let best = screen(problem, &spec, &starts, q, fan);
+        let _ = self
+            .power_law_screened
+            .set(best.as_ref().map(|(_, th)| th.clone()));
+        best.map(|(c, _)| c)
     }
 
     /// A start of `spec`, a single adhesion in any form, with the twin's first contact on the
@@ -2053,6 +2125,34 @@ mod tests {
             "floor {} V, noise {sigma} V",
             d.noise.sigma_v
         );
+        assert!(d.against_floor.after_at_floor, "{:?}", d.against_floor);
+    }
+
+    /// A sphere worn flat — the profile z = B·r³, declared as the sphere of the same height
+    /// at a contact radius of 100 nm — is named tip_geometry in its power-law form, with its
+    /// profile exponent recovered (no pure shape, and no blunted one, bends the load law
+    /// below the sphere's h^{3/2}).
+    #[test]
+    fn a_worn_flat_tip_is_named_with_its_exponent() {
+        let mut twin = nominal_twin(17);
+        let crate::twin::TipConfig::Sphere { radius_nm } = twin.tip else {
+            panic!("the corpus twin has a sphere")
+        };
+        let n = 3.0;
+        twin.tip = crate::twin::TipConfig::PowerLaw {
+            profile_exponent: n,
+            profile_coefficient: 100f64.powf(2.0 - n) / (2.0 * radius_nm),
+        };
+        let d = diagnosed(&twin, 5000.0);
+        assert_eq!(d.verdict, Verdict::Mismatch, "{:?}", d.effects);
+        assert_eq!(d.effects[0].id, "tip_geometry");
+        assert!(d.effects[0].significant);
+        let exponent = d.effects[0]
+            .params
+            .iter()
+            .find(|p| p.name == "profile_exponent")
+            .unwrap_or_else(|| panic!("not the power-law form: {:?}", d.effects[0].params));
+        assert!((exponent.value - n).abs() < 0.15 * n, "{exponent:?}");
         assert!(d.against_floor.after_at_floor, "{:?}", d.against_floor);
     }
 

@@ -87,7 +87,7 @@ impl Effect {
                 "tip–sample adhesion (DMT): a pull-off on retract, an adhesive neck that holds the tip past it, or a pull reaching out that snaps it in"
             }
             Effect::TipGeometry => {
-                "a tip shape other than the one declared: the other pure shape, or a blunted (sphere-capped) cone"
+                "a tip shape other than the one declared: the other pure shape, a blunted (sphere-capped) cone, or a power-law profile (a worn or sharpened tip)"
             }
             Effect::HydrodynamicDrag => "viscous drag on the lever, proportional to its velocity",
             Effect::ChannelDelay => "a delay of the deflection channel behind the drive",
@@ -241,10 +241,32 @@ pub enum TipForm {
     /// A blunted (sphere-capped) cone: the declared sphere on a cone, or the declared cone
     /// with a rounded apex. One parameter, the depth below which it indents like the sphere.
     Blunted,
+    /// A power-law profile `z ∝ r^n` (`P ∝ h^{1+1/n}`) in place of the declared shape: a
+    /// sphere worn flat (n > 2), a cone rounded or sharpened along its flank. One parameter,
+    /// the profile exponent; the profile's scale makes it carry the declared tip's force at
+    /// [`Problem::tip_reference_depth_nm`], so the compliances keep their meaning as it
+    /// moves and the declared exponent is the declared tip.
+    PowerLaw,
+}
+
+impl TipForm {
+    /// The profile exponent of a pure declared shape: 2 for a sphere, 1 for a cone.
+    pub fn declared_exponent(declared: TipConfig) -> f64 {
+        match declared {
+            TipConfig::Cone { .. } => 1.0,
+            TipConfig::PowerLaw {
+                profile_exponent, ..
+            } => profile_exponent,
+            TipConfig::Sphere { .. } | TipConfig::BluntedCone { .. } => 2.0,
+        }
+    }
 }
 
 /// The parameter of a blunted tip.
 const BLUNTED_TIP_NAMES: &[(&str, &str)] = &[("transition_depth_nm", "nm")];
+
+/// The parameter of a power-law tip (fitted as its logarithm).
+const POWER_LAW_TIP_NAMES: &[(&str, &str)] = &[("profile_exponent", "1")];
 
 /// The forms of `thermal_drift`. Real thermal drift shifts the tip–sample distance at least
 /// as often as the detector's zero; the deflection a surface drift causes follows the
@@ -559,7 +581,9 @@ impl ModelSpec {
             fork(&mut out, &reaching, |s, f| s.adhesion = f);
         }
         if first.has(Effect::TipGeometry) && first.tip == TipForm::Swap {
-            fork(&mut out, &[TipForm::Blunted], |s, f| s.tip = f);
+            fork(&mut out, &[TipForm::Blunted, TipForm::PowerLaw], |s, f| {
+                s.tip = f
+            });
         }
         if first.has(Effect::DetectorNonlinearity) && first.nonlinearity == NonlinearityForm::Both {
             let single = [NonlinearityForm::Quadratic, NonlinearityForm::Cubic];
@@ -604,6 +628,8 @@ impl ModelSpec {
             SURFACE_DRIFT_NAMES
         } else if e == Effect::TipGeometry && self.tip == TipForm::Blunted {
             BLUNTED_TIP_NAMES
+        } else if e == Effect::TipGeometry && self.tip == TipForm::PowerLaw {
+            POWER_LAW_TIP_NAMES
         } else if e == Effect::InstrumentResonance && self.resonance == ResonanceForm::Peaking {
             PEAKING_RESONANCE_NAMES
         } else {
@@ -723,7 +749,14 @@ pub struct Problem {
     pub drive_spectrum: std::sync::OnceLock<DriveSpectrum>,
     /// Twin simulations run so far (the cost of a diagnosis); leave at zero.
     pub simulations: std::sync::atomic::AtomicUsize,
+    /// Depth at which a power-law tip ([`TipForm::PowerLaw`]) carries the declared tip's
+    /// force, nm: the nominal fit's deepest indentation, set once that fit is known (0 before:
+    /// [`DEFAULT_TIP_REFERENCE_DEPTH_NM`]).
+    pub tip_reference_depth_nm: f64,
 }
+
+/// The power-law tip's reference depth while none is set, nm.
+pub const DEFAULT_TIP_REFERENCE_DEPTH_NM: f64 = 100.0;
 
 /// A model's simulated, noise-free deflection and the twin's truth along it.
 #[derive(Debug, Clone)]
@@ -835,6 +868,34 @@ impl Problem {
         th[0].exp()
     }
 
+    /// The power-law tip of profile exponent `n` that carries the declared tip's force at
+    /// the reference depth ([`Problem::tip_reference_depth_nm`]): equal compliances give equal
+    /// forces there, and at `n` = the declared exponent it is the declared tip.
+    ///
+    /// With `y = h^m`, `m = 1 + 1/n`, and `u = (1−ν²)(n+1)/(2n)·K^{1/n}·P`, `K = k_n·B`
+    /// ([`crate::contact`]), equal `y/u` at depth h asks for
+    /// `K^{1/n} = h^m·c/(y(h)·(1−ν²)(n+1)/(2n))`, c and y the declared tip's.
+    pub fn power_law_tip(&self, n: f64) -> TipConfig {
+        let h_nm = if self.tip_reference_depth_nm > 0.0 {
+            self.tip_reference_depth_nm
+        } else {
+            DEFAULT_TIP_REFERENCE_DEPTH_NM
+        };
+        let h = h_nm * 1e-9;
+        let declared = crate::contact::Contact {
+            tip: self.declared_tip.geometry(),
+            poisson_ratio: self.poisson_ratio,
+        };
+        let y_over_c = declared.y_from_indentation(h) / declared.force_factor();
+        let nu = 1.0 - self.poisson_ratio * self.poisson_ratio;
+        let k_root = h.powf(1.0 + 1.0 / n) / (y_over_c * nu * (n + 1.0) / (2.0 * n));
+        let b_si = k_root.powf(n) / crate::contact::TipGeometry::power_law_depth_factor(n);
+        TipConfig::PowerLaw {
+            profile_exponent: n,
+            profile_coefficient: b_si / 1e-9f64.powf(1.0 - n),
+        }
+    }
+
     pub fn contact_point_nm(&self, th: &[f64]) -> f64 {
         th[1] * ZC_SCALE_NM
     }
@@ -887,12 +948,17 @@ impl Problem {
         let tip = if spec.has(Effect::TipGeometry) && spec.tip == TipForm::Blunted {
             let depth = p(Effect::TipGeometry, 0).map_or(1.0, f64::exp);
             blunted(self.declared_tip, depth)
+        } else if spec.has(Effect::TipGeometry) && spec.tip == TipForm::PowerLaw {
+            let n = p(Effect::TipGeometry, 0).map_or(1.0, f64::exp);
+            self.power_law_tip(n)
         } else if spec.has(Effect::TipGeometry) {
             match self.declared_tip {
                 TipConfig::Sphere { .. } => TipConfig::Cone {
                     half_angle_deg: CONE_HALF_ANGLE_DEG,
                 },
-                TipConfig::Cone { .. } | TipConfig::BluntedCone { .. } => TipConfig::Sphere {
+                TipConfig::Cone { .. }
+                | TipConfig::BluntedCone { .. }
+                | TipConfig::PowerLaw { .. } => TipConfig::Sphere {
                     radius_nm: SWAP_SPHERE_RADIUS_NM,
                 },
             }
@@ -1237,6 +1303,16 @@ impl Problem {
         }
         if let Some(o) = spec
             .offset_of(effect)
+            .filter(|_| effect == Effect::TipGeometry && spec.tip == TipForm::PowerLaw)
+        {
+            // The load law `P ∝ h^m`, m = 1 + 1/n, its interval mapped through from n's.
+            let (x, s) = (th[o], sd.get(o).copied().unwrap_or(f64::NAN));
+            let m = |lnn: f64| 1.0 + (-lnn).exp();
+            let (lo, hi) = (m(x + 1.96 * s), m(x - 1.96 * s));
+            out.push(("load_exponent".into(), "1", m(x), [lo.min(hi), lo.max(hi)]));
+        }
+        if let Some(o) = spec
+            .offset_of(effect)
             .filter(|_| effect == Effect::TipGeometry && spec.tip == TipForm::Blunted)
         {
             // The blunted tip's own geometry, its interval mapped through from the depth's.
@@ -1323,6 +1399,15 @@ fn blunted(declared: TipConfig, depth_nm: f64) -> TipConfig {
                 half_angle_deg,
             }
         }
+        // A declared profile is blunted as the sphere it is declared as.
+        TipConfig::PowerLaw { .. } => match declared.declared_as() {
+            crate::recording::Tip::Sphere { radius_nm } => {
+                blunted(TipConfig::Sphere { radius_nm }, depth_nm)
+            }
+            crate::recording::Tip::Cone { half_angle_deg } => {
+                blunted(TipConfig::Cone { half_angle_deg }, depth_nm)
+            }
+        },
     }
 }
 

@@ -39,6 +39,9 @@ use serde::{Deserialize, Serialize};
 /// The longest detector delay a twin accepts, s: a channel delays by microseconds to
 /// milliseconds, and a record is seconds long.
 pub const MAX_DETECTOR_DELAY_S: f64 = 10.0;
+/// The range of a power-law tip's profile exponent (`[tip] shape = "powerlaw"`).
+pub const MIN_PROFILE_EXPONENT: f64 = 0.25;
+pub const MAX_PROFILE_EXPONENT: f64 = 20.0;
 
 /// The whole twin, as read from a `[twin]`-style TOML document.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -91,6 +94,72 @@ pub enum TipConfig {
         radius_nm: f64,
         half_angle_deg: f64,
     },
+    /// An axisymmetric tip of profile `z = profile_coefficient·r^profile_exponent` (r, z in
+    /// nm; the coefficient in nm^(1−n)), which indents as `P ∝ h^{1+1/n}`: 2 and `1/(2R)`
+    /// are the sphere, 1 and `cot α` the cone; a tip worn flat has n > 2. (`shape =
+    /// "powerlaw"`.)
+    #[serde(rename = "powerlaw")]
+    PowerLaw {
+        profile_exponent: f64,
+        profile_coefficient: f64,
+    },
+}
+
+impl TipConfig {
+    /// The tip a recording's sidecar declares for this one: the spec knows spheres and cones.
+    /// A blunted cone is declared by its cap, as a user who trusts the tip's nominal radius
+    /// would; a power-law profile as the pure shape nearest it at a contact radius of
+    /// 100 nm, a sphere of the same height there from n = 1.5 up, else a cone of the same
+    /// flank slope.
+    /// The contact transform's geometry of this tip, in SI units.
+    pub fn geometry(&self) -> TipGeometry {
+        match *self {
+            TipConfig::Sphere { radius_nm } => TipGeometry::Sphere {
+                radius_m: radius_nm * 1e-9,
+            },
+            TipConfig::Cone { half_angle_deg } => TipGeometry::Cone {
+                half_angle_rad: half_angle_deg.to_radians(),
+            },
+            TipConfig::BluntedCone {
+                radius_nm,
+                half_angle_deg,
+            } => TipGeometry::BluntedCone {
+                radius_m: radius_nm * 1e-9,
+                half_angle_rad: half_angle_deg.to_radians(),
+            },
+            TipConfig::PowerLaw {
+                profile_exponent: n,
+                profile_coefficient: b,
+            } => TipGeometry::PowerLaw {
+                exponent: n,
+                // z_m = B_si·r_m^n with z_m = 1e-9·z_nm and r_m = 1e-9·r_nm.
+                coefficient_si: b * 1e-9f64.powf(1.0 - n),
+            },
+        }
+    }
+
+    pub fn declared_as(&self) -> crate::recording::Tip {
+        use crate::recording::Tip;
+        const R0_NM: f64 = 100.0;
+        match *self {
+            TipConfig::Sphere { radius_nm } | TipConfig::BluntedCone { radius_nm, .. } => {
+                Tip::Sphere { radius_nm }
+            }
+            TipConfig::Cone { half_angle_deg } => Tip::Cone { half_angle_deg },
+            TipConfig::PowerLaw {
+                profile_exponent: n,
+                profile_coefficient: b,
+            } if n >= 1.5 => Tip::Sphere {
+                radius_nm: R0_NM.powf(2.0 - n) / (2.0 * b),
+            },
+            TipConfig::PowerLaw {
+                profile_exponent: n,
+                profile_coefficient: b,
+            } => Tip::Cone {
+                half_angle_deg: (1.0 / (n * b * R0_NM.powf(n - 1.0))).atan().to_degrees(),
+            },
+        }
+    }
 }
 
 /// `[sample]`: the soft sample under test.
@@ -244,6 +313,13 @@ impl TwinConfig {
                 radius_nm,
                 half_angle_deg,
             } => (Some(radius_nm), Some(half_angle_deg)),
+            TipConfig::PowerLaw {
+                profile_coefficient,
+                ..
+            } => {
+                positive(p("tip.profile_coefficient"), profile_coefficient);
+                (None, None)
+            }
         };
         if let Some(r) = radius {
             positive(p("tip.radius_nm"), r);
@@ -253,6 +329,22 @@ impl TwinConfig {
                 path: p("tip.half_angle_deg"),
                 message: format!("must lie in (0, 90) degrees (got {a})"),
             });
+        }
+        if let TipConfig::PowerLaw {
+            profile_exponent: n,
+            ..
+        } = self.tip
+        {
+            // Beyond these the profile is a needle or a punch, and Γ and the powers of the
+            // transform leave the range of a double.
+            if !(n.is_finite() && (MIN_PROFILE_EXPONENT..=MAX_PROFILE_EXPONENT).contains(&n)) {
+                issues.push(ConfigIssue {
+                    path: p("tip.profile_exponent"),
+                    message: format!(
+                        "must lie in [{MIN_PROFILE_EXPONENT}, {MAX_PROFILE_EXPONENT}] (2 is a sphere, 1 a cone; got {n})"
+                    ),
+                });
+            }
         }
         let m = &self.sample.material;
         let mut positive = |path: String, v: f64| {
@@ -376,21 +468,7 @@ impl TwinConfig {
 
     /// The contact transform of this tip and sample.
     pub fn contact(&self) -> Contact {
-        let tip = match self.tip {
-            TipConfig::Sphere { radius_nm } => TipGeometry::Sphere {
-                radius_m: radius_nm * 1e-9,
-            },
-            TipConfig::Cone { half_angle_deg } => TipGeometry::Cone {
-                half_angle_rad: half_angle_deg.to_radians(),
-            },
-            TipConfig::BluntedCone {
-                radius_nm,
-                half_angle_deg,
-            } => TipGeometry::BluntedCone {
-                radius_m: radius_nm * 1e-9,
-                half_angle_rad: half_angle_deg.to_radians(),
-            },
-        };
+        let tip = self.tip.geometry();
         Contact {
             tip,
             poisson_ratio: self.sample.poisson_ratio,

@@ -371,3 +371,73 @@ fn long_range_adhesion_snaps_in_ahead_of_the_surface() {
     let issues = bad.validate("");
     assert!(issues.iter().any(|i| i.path == "sample.adhesion_range_nm"));
 }
+
+/// A tip worn flat, the profile z = B·r³ (nm): at rest in contact, K·d equals the elastic
+/// load of that profile, `P = 2E*·n/(n+1)·k_n·B·a^{n+1}` at the contact radius a with
+/// `h = k_n·B·a^n` (k_3 = 3π/4), computed here by hand in nm.
+#[test]
+fn a_power_law_tip_carries_its_elastic_load() {
+    let mut cfg = base_config();
+    let (n, b_nm) = (3.0, 2.0e-5);
+    cfg.tip = TipConfig::PowerLaw {
+        profile_exponent: n,
+        profile_coefficient: b_nm,
+    };
+    assert!(cfg.validate("").is_empty());
+    let mut twin = Twin::new(&cfg, 8000.0);
+    let mut s = twin.step(0.0);
+    for _ in 0..10 {
+        s = twin.step(1.5);
+    }
+    let t = s.truth;
+    assert!(t.in_contact);
+    let h_nm = t.indentation_m * 1e9;
+    let k3 = 3.0 * std::f64::consts::PI / 4.0;
+    let a_nm = (h_nm / (k3 * b_nm)).powf(1.0 / n);
+    let e_star = 1e6 / (1.0 - 0.25); // Pa
+                                     // P in N: E*[Pa]·(length in m)², the bracket in nm² × 1e-18.
+    let p_n = 2.0 * e_star * n / (n + 1.0) * k3 * b_nm * a_nm.powf(n + 1.0) * 1e-18;
+    assert!(
+        (t.force_n - p_n).abs() / p_n < 1e-6,
+        "{} vs {p_n}",
+        t.force_n
+    );
+    assert!((t.deflection_nm + h_nm - 50.0).abs() < 1e-9);
+}
+
+/// `[tip] shape = "powerlaw"` reads from TOML, is declared as its nearest pure shape, and a
+/// bad exponent or coefficient is named by its key.
+#[test]
+fn power_law_tip_config() {
+    let tip: TipConfig =
+        toml::from_str("shape = \"powerlaw\"\nprofile_exponent = 2.0\nprofile_coefficient = 5e-4")
+            .unwrap();
+    assert_eq!(
+        tip.declared_as(),
+        crate::recording::Tip::Sphere { radius_nm: 1000.0 }
+    );
+    let cone = TipConfig::PowerLaw {
+        profile_exponent: 1.0,
+        profile_coefficient: 1.0,
+    };
+    match cone.declared_as() {
+        crate::recording::Tip::Cone { half_angle_deg } => {
+            assert!((half_angle_deg - 45.0).abs() < 1e-9)
+        }
+        other => panic!("{other:?}"),
+    }
+    let mut bad = base_config();
+    bad.tip = TipConfig::PowerLaw {
+        profile_exponent: 40.0,
+        profile_coefficient: -1.0,
+    };
+    let paths: Vec<String> = bad.validate("twin").into_iter().map(|i| i.path).collect();
+    assert!(
+        paths.contains(&"twin.tip.profile_exponent".to_string()),
+        "{paths:?}"
+    );
+    assert!(
+        paths.contains(&"twin.tip.profile_coefficient".to_string()),
+        "{paths:?}"
+    );
+}
