@@ -239,6 +239,38 @@ impl Contact {
         }
     }
 
+    /// Contact radius in metres at indentation `h_m` (0 for h ≤ 0): `√(Rh)` for a sphere,
+    /// `2h·tan α/π` for a cone, `(h/(k_n·B))^{1/n}` for a power-law profile, and the
+    /// blunted cone's from its solve. The thickness of a film under the tip is measured
+    /// against it.
+    pub fn contact_radius(&self, h_m: f64) -> f64 {
+        if h_m <= 0.0 {
+            return 0.0;
+        }
+        match self.tip {
+            TipGeometry::Sphere { radius_m } => (radius_m * h_m).sqrt(),
+            TipGeometry::Cone { half_angle_rad } => {
+                2.0 * h_m * half_angle_rad.tan() / std::f64::consts::PI
+            }
+            TipGeometry::BluntedCone {
+                radius_m,
+                half_angle_rad,
+            } => {
+                let bc = BluntedCone::new(radius_m, half_angle_rad);
+                if h_m <= bc.h_t {
+                    (radius_m * h_m).sqrt()
+                } else {
+                    bc.at(bc.s_from_h(h_m).0).a
+                }
+            }
+            TipGeometry::PowerLaw {
+                exponent,
+                coefficient_si,
+            } => (h_m / (TipGeometry::power_law_depth_factor(exponent) * coefficient_si))
+                .powf(1.0 / exponent),
+        }
+    }
+
     /// Static (elastic) indentation under force `force_n` on a material of compliance
     /// `compliance_per_pa`: the classic Hertz / Sneddon result.
     pub fn elastic_indentation(&self, force_n: f64, compliance_per_pa: f64) -> f64 {
@@ -906,5 +938,33 @@ mod tests {
         let text = toml::to_string(&c).unwrap();
         assert!(text.contains("shape = \"powerlaw\""), "{text}");
         assert_eq!(toml::from_str::<Contact>(&text).unwrap(), c);
+    }
+
+    /// The contact radius of each shape against its closed form, and continuous across the
+    /// blunted cone's transition.
+    #[test]
+    fn contact_radius_of_each_shape() {
+        let (r, alpha) = (1e-6f64, 0.5f64);
+        let h = 4e-8;
+        let rel = |a: f64, b: f64| (a - b).abs() / b;
+        assert!(rel(Contact::sphere(r).contact_radius(h), (r * h).sqrt()) < 1e-12);
+        let cone = 2.0 * h * alpha.tan() / std::f64::consts::PI;
+        assert!(rel(Contact::cone(alpha).contact_radius(h), cone) < 1e-12);
+        let law = Contact {
+            tip: TipGeometry::PowerLaw {
+                exponent: 2.0,
+                coefficient_si: 0.5 / r,
+            },
+            poisson_ratio: 0.5,
+        };
+        assert!(rel(law.contact_radius(h), (r * h).sqrt()) < 1e-12);
+        let blunted = Contact::blunted_cone(r, alpha);
+        let h_t = r * alpha.cos().powi(2);
+        let (below, above) = (
+            blunted.contact_radius(h_t * (1.0 - 1e-9)),
+            blunted.contact_radius(h_t * (1.0 + 1e-9)),
+        );
+        assert!(rel(above, below) < 1e-4, "{below} {above}");
+        assert_eq!(Contact::sphere(r).contact_radius(0.0), 0.0);
     }
 }

@@ -694,13 +694,17 @@ impl Twin {
         let k_si = k; // N/m
 
         // The film's stiffening of the contact at indentation h (Dimitriadis et al. 2002, a
-        // film bonded to a rigid substrate, ν ≈ 0.5), or `None` where there is no film: a
-        // factor 1, applied as no division at all, which keeps two divisions off the Newton
-        // step's critical path.
+        // film bonded to a rigid substrate, ν ≈ 0.5), in the ratio χ of the contact radius to
+        // the thickness; or `None` where there is no film: a factor 1, applied as no division
+        // at all, which keeps two divisions off the Newton step's critical path.
+        // Dimitriadis derived the polynomial for a sphere; it is used here in χ = a/t for
+        // every tip, as a bottom effect set by the contact radius a, rather than leave a film
+        // under a cone with no effect at all. (Gavara & Chadwick 2012 derived a cone's own
+        // coefficients; this twin does not carry them.)
         let film = |h_m: f64| -> Option<f64> {
-            match (s.thickness_nm, self.cfg.tip) {
-                (Some(th), TipConfig::Sphere { radius_nm }) if h_m > 0.0 => {
-                    let chi = (radius_nm * 1e-9 * h_m).sqrt() / (th * 1e-9);
+            match s.thickness_nm {
+                Some(th) if h_m > 0.0 => {
+                    let chi = contact.contact_radius(h_m) / (th * 1e-9);
                     Some(
                         1.0 + 1.133 * chi
                             + 1.283 * chi.powi(2)

@@ -441,3 +441,61 @@ fn power_law_tip_config() {
         "{paths:?}"
     );
 }
+
+/// A film on a rigid substrate stiffens the contact by Dimitriadis's factor in χ = a/t, the
+/// contact radius over the thickness: at rest, K·d is the free contact's load at the same
+/// indentation times that factor, for a sphere (a = √(Rh)) and a cone (a = 2h·tan α/π).
+#[test]
+fn a_film_stiffens_the_contact_by_its_contact_radius() {
+    let thickness_nm = 60.0;
+    // The free contact's load (N) and contact radius (m) at an indentation (m).
+    type Free = fn(f64) -> (f64, f64);
+    let cases: [(TipConfig, Free); 2] = [
+        (TipConfig::Sphere { radius_nm: 20.0 }, |h| {
+            let r = 20e-9f64;
+            (
+                4.0 / 3.0 * 1e6 / 0.75 * r.sqrt() * h.powf(1.5),
+                (r * h).sqrt(),
+            )
+        }),
+        (
+            TipConfig::Cone {
+                half_angle_deg: 70.0,
+            },
+            |h| {
+                let tan = 70f64.to_radians().tan();
+                (
+                    2.0 / std::f64::consts::PI * 1e6 / 0.75 * tan * h * h,
+                    2.0 * h * tan / std::f64::consts::PI,
+                )
+            },
+        ),
+    ];
+    for (tip, free) in cases {
+        let mut cfg = base_config();
+        cfg.tip = tip;
+        cfg.sample.thickness_nm = Some(thickness_nm);
+        assert!(cfg.validate("").is_empty());
+        let mut twin = Twin::new(&cfg, 8000.0);
+        let mut s = twin.step(0.0);
+        for _ in 0..10 {
+            s = twin.step(1.5);
+        }
+        let t = s.truth;
+        assert!(t.in_contact, "{tip:?}");
+        let (p_free, a) = free(t.indentation_m);
+        let chi = a / (thickness_nm * 1e-9);
+        let factor =
+            1.0 + 1.133 * chi + 1.283 * chi.powi(2) + 0.769 * chi.powi(3) + 0.0975 * chi.powi(4);
+        assert!(
+            factor > 1.1,
+            "{tip:?}: a film this thin must show (factor {factor})"
+        );
+        let p = p_free * factor;
+        assert!(
+            (t.force_n - p).abs() / p < 1e-9,
+            "{tip:?}: {} vs {p}",
+            t.force_n
+        );
+    }
+}
