@@ -12,10 +12,8 @@
 use crate::config::SimConfigFile;
 use anyhow::{bail, Context};
 use std::path::Path;
-use viscoprobe_core::recording::{
-    Cantilever, Drive, Piezo, Recording, Sample, Sidecar, Tip, FORMAT,
-};
-use viscoprobe_core::twin::{SampleSlot, TipConfig};
+use viscoprobe_core::recording::{Cantilever, Drive, Piezo, Recording, Sample, Sidecar, FORMAT};
+use viscoprobe_core::twin::SampleSlot;
 use viscoprobe_hal::acquire::run_drive;
 use viscoprobe_hal::sim::{Pacing, SimulatedSpm};
 use viscoprobe_hal::{ForceCalibration, Guarded, Instrument, SafetyLimits, StreamConfig};
@@ -369,15 +367,8 @@ pub fn sidecar_for_twin(
     notes: Option<toml::Table>,
     truth: Option<toml::Table>,
 ) -> Sidecar {
-    let tip = match t.tip {
-        TipConfig::Sphere { radius_nm } => Tip::Sphere { radius_nm },
-        TipConfig::Cone { half_angle_deg } => Tip::Cone { half_angle_deg },
-        // The recording format declares spheres and cones: a blunted cone is declared by its
-        // cap, as a user who trusts the tip's nominal radius would.
-        TipConfig::BluntedCone { radius_nm, .. } => Tip::Sphere { radius_nm },
-        // A power-law profile is declared as the pure shape nearest it (see `declared_as`).
-        TipConfig::PowerLaw { .. } => t.tip.declared_as(),
-    };
+    // The recording format declares spheres and cones (`TipConfig::declared_as`).
+    let tip = t.tip.declared_as();
     Sidecar {
         format: FORMAT.to_string(),
         sample_rate_hz: fs,

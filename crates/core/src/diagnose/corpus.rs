@@ -455,17 +455,6 @@ fn deflection(twin: &TwinConfig, drive_v: &[f64], fs_hz: f64) -> Vec<f64> {
     drive_v.iter().map(|&v| t.step(v).deflection_v).collect()
 }
 
-fn tip_of(t: TipConfig) -> Tip {
-    match t {
-        TipConfig::Sphere { radius_nm } => Tip::Sphere { radius_nm },
-        TipConfig::Cone { half_angle_deg } => Tip::Cone { half_angle_deg },
-        // The recording format declares spheres and cones: a blunted cone is declared by its
-        // cap, as a user who trusts the tip's nominal radius would.
-        TipConfig::BluntedCone { radius_nm, .. } => Tip::Sphere { radius_nm },
-        TipConfig::PowerLaw { .. } => t.declared_as(),
-    }
-}
-
 /// The twin configuration as a TOML table (absent options left out).
 fn twin_table(twin: &TwinConfig) -> Table {
     match Value::try_from(twin) {
@@ -495,7 +484,7 @@ pub fn simulate(
             spring_constant_n_per_m: twin.cantilever.spring_constant_n_per_m,
             deflection_sensitivity_nm_per_v: twin.cantilever.deflection_sensitivity_nm_per_v,
         },
-        tip: tip_of(declared_tip.unwrap_or(twin.tip)),
+        tip: declared_tip.unwrap_or(twin.tip).declared_as(),
         piezo: Some(Piezo {
             gain_nm_per_v: twin.actuator.gain_nm_per_v,
         }),

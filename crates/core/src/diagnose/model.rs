@@ -1399,7 +1399,7 @@ fn blunted(declared: TipConfig, depth_nm: f64) -> TipConfig {
                 half_angle_deg,
             }
         }
-        // A declared profile is blunted as the sphere it is declared as.
+        // A declared profile is blunted as the pure shape it is declared as.
         TipConfig::PowerLaw { .. } => match declared.declared_as() {
             crate::recording::Tip::Sphere { radius_nm } => {
                 blunted(TipConfig::Sphere { radius_nm }, depth_nm)

@@ -106,11 +106,6 @@ pub enum TipConfig {
 }
 
 impl TipConfig {
-    /// The tip a recording's sidecar declares for this one: the spec knows spheres and cones.
-    /// A blunted cone is declared by its cap, as a user who trusts the tip's nominal radius
-    /// would; a power-law profile as the pure shape nearest it at a contact radius of
-    /// 100 nm, a sphere of the same height there from n = 1.5 up, else a cone of the same
-    /// flank slope.
     /// The contact transform's geometry of this tip, in SI units.
     pub fn geometry(&self) -> TipGeometry {
         match *self {
@@ -138,6 +133,11 @@ impl TipConfig {
         }
     }
 
+    /// The tip a recording's sidecar declares for this one: the spec knows spheres and cones.
+    /// A blunted cone is declared by its cap, as a user who trusts the tip's nominal radius
+    /// would; a power-law profile as the pure shape nearest it at a contact radius of
+    /// 100 nm, a sphere of the same height there from n = 1.5 up, else a cone of the same
+    /// flank slope.
     pub fn declared_as(&self) -> crate::recording::Tip {
         use crate::recording::Tip;
         const R0_NM: f64 = 100.0;
