@@ -1523,8 +1523,13 @@ mod tests {
         let mains = forms(&[Effect::MainsInterference]);
         assert_eq!(mains.len(), 2);
         assert!(!mains[0].mains_harmonics && mains[1].mains_harmonics);
+        let tip = forms(&[Effect::TipGeometry]);
+        let kinds: Vec<TipForm> = tip.iter().map(|s| s.tip).collect();
+        assert_eq!(kinds, [TipForm::Swap, TipForm::Blunted, TipForm::PowerLaw]);
+        let counts: Vec<usize> = tip.iter().map(|s| s.n_nonlinear()).collect();
+        assert_eq!([counts[1] - counts[0], counts[2] - counts[0]], [1, 1]);
         let both = forms(&[Effect::Adhesion, Effect::TipGeometry]);
-        assert_eq!(both.len(), 6);
+        assert_eq!(both.len(), 9);
         assert!(both
             .iter()
             .any(|s| s.adhesion == AdhesionForm::Neck && s.tip == TipForm::Blunted));
