@@ -948,7 +948,11 @@ fn creep_knob(tau_s: f64) -> Knob {
         increasing: true,
         sign: None,
         apply: Box::new(move |c, p| {
-            c.actuator.creep = Some(Creep { fraction: p, tau_s });
+            c.actuator.creep = Some(Creep {
+                fraction: p,
+                tau_s,
+                decades: None,
+            });
             vec![
                 ("actuator.creep.fraction".into(), p),
                 ("actuator.creep.tau_s".into(), tau_s),

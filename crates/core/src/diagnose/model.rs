@@ -930,6 +930,7 @@ impl Problem {
             actuator.creep = Some(Creep {
                 fraction: f.exp(),
                 tau_s: t.exp(),
+                decades: None,
             });
         }
         if let (Some(f), Some(q)) = (

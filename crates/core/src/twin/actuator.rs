@@ -73,11 +73,32 @@ pub struct BoucWen {
     pub gamma: f64,
 }
 
-/// Linear creep: an extra `fraction·g·v` approached with time constant `tau_s`.
+/// Linear creep: an extra `fraction·g·v` approached with time constant `tau_s`; or, with
+/// `decades`, the logarithmic creep of a real piezo (`x(t) ≈ g·v·(1 + γ·log10(t/t0))` after a
+/// step): `fraction` per decade of time, one first-order term per decade at `tau_s`,
+/// `10·tau_s`, … (`decades` terms, so `decades·fraction` in all).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Creep {
     pub fraction: f64,
     pub tau_s: f64,
+    /// Decades of a logarithmic creep (absent: a single time constant).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub decades: Option<u32>,
+}
+
+/// The most decades a logarithmic creep spans.
+pub const MAX_CREEP_DECADES: u32 = 12;
+
+impl Creep {
+    /// `(fraction, tau_s)` of each first-order term.
+    pub fn terms(&self) -> impl Iterator<Item = (f64, f64)> + '_ {
+        (0..self.decades.unwrap_or(1)).map(|k| (self.fraction, self.tau_s * 10f64.powi(k as i32)))
+    }
+
+    /// The creep a held voltage ends at, as a share of `g·v`.
+    pub fn total_fraction(&self) -> f64 {
+        self.fraction * self.decades.unwrap_or(1) as f64
+    }
 }
 
 /// Actuator state.
@@ -85,7 +106,8 @@ pub struct Creep {
 pub struct Actuator {
     cfg: ActuatorConfig,
     modes: Vec<SecondOrder>,
-    creep: Option<FirstOrder>,
+    /// One first-order lag per creep term, each with its share of `g·v`.
+    creep: Vec<(f64, FirstOrder)>,
     h_nm: f64,
     last_v: f64,
     position_nm: f64,
@@ -105,7 +127,12 @@ impl Actuator {
                     }
                 })
                 .collect(),
-            creep: cfg.creep.map(|c| FirstOrder::new(c.tau_s, fs_hz)),
+            creep: cfg
+                .creep
+                .iter()
+                .flat_map(|c| c.terms())
+                .map(|(f, tau)| (f, FirstOrder::new(tau, fs_hz)))
+                .collect(),
             cfg: cfg.clone(),
             h_nm: 0.0,
             last_v: 0.0,
@@ -117,14 +144,13 @@ impl Actuator {
     pub fn settle(&mut self, v: f64) {
         self.last_v = v;
         self.h_nm = 0.0;
-        let creep = self
-            .cfg
-            .creep
-            .map_or(0.0, |c| c.fraction * self.cfg.gain_nm_per_v * v);
-        if let (Some(f), Some(_)) = (self.creep.as_mut(), self.cfg.creep) {
-            f.settle(creep);
+        let gv = self.cfg.gain_nm_per_v * v;
+        let mut creep = 0.0;
+        for (share, f) in &mut self.creep {
+            f.settle(*share * gv);
+            creep += *share * gv;
         }
-        let x = self.cfg.gain_nm_per_v * v + creep;
+        let x = gv + creep;
         for m in &mut self.modes {
             m.settle(x);
         }
@@ -147,10 +173,11 @@ impl Actuator {
             }
         }
         self.last_v = v;
-        let creep = match (self.creep.as_mut(), self.cfg.creep) {
-            (Some(f), Some(c)) => f.step(c.fraction * g * v),
-            _ => 0.0,
-        };
+        let creep: f64 = self
+            .creep
+            .iter_mut()
+            .map(|(share, f)| f.step(*share * g * v))
+            .sum();
         g * v - self.h_nm + creep
     }
 
@@ -236,6 +263,7 @@ mod tests {
             modes: vec![],
             hysteresis: None,
             creep: Some(Creep {
+                decades: None,
                 fraction: 0.1,
                 tau_s: 0.5,
             }),
@@ -249,5 +277,48 @@ mod tests {
         }
         let expected = 100.0 + 10.0 * (1.0 - (-1.0f64).exp());
         assert!((x - expected).abs() < 1e-9, "{x} vs {expected}");
+    }
+
+    /// A logarithmic creep over five decades: the step response is the sum of its five
+    /// first-order terms, and inside their span it grows by about `fraction·g·v` per decade
+    /// of time, as a real piezo's does.
+    #[test]
+    fn logarithmic_creep_grows_per_decade() {
+        let creep = Creep {
+            fraction: 0.02,
+            tau_s: 0.01,
+            decades: Some(5),
+        };
+        assert!((creep.total_fraction() - 0.1).abs() < 1e-15);
+        let cfg = ActuatorConfig {
+            gain_nm_per_v: 50.0,
+            modes: vec![],
+            hysteresis: None,
+            creep: Some(creep),
+        };
+        let fs = 1000.0;
+        let mut a = Actuator::new(&cfg, fs);
+        a.settle(0.0);
+        let gv = 100.0;
+        let mut at = std::collections::BTreeMap::new();
+        for k in 1..=10_000 {
+            let x = a.step(2.0);
+            if [100, 1000, 10_000].contains(&k) {
+                at.insert(k, x);
+            }
+        }
+        for (&k, &x) in &at {
+            let t = k as f64 / fs;
+            let expected = gv
+                * (1.0
+                    + (0..5)
+                        .map(|j| 0.02 * (1.0 - (-t / (0.01 * 10f64.powi(j))).exp()))
+                        .sum::<f64>());
+            assert!((x - expected).abs() < 1e-9, "t {t}: {x} vs {expected}");
+        }
+        for (lo, hi) in [(100, 1000), (1000, 10_000)] {
+            let per_decade = (at[&hi] - at[&lo]) / gv;
+            assert!((per_decade - 0.02).abs() < 0.2 * 0.02, "{per_decade}");
+        }
     }
 }

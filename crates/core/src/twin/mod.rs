@@ -330,6 +330,20 @@ impl TwinConfig {
                 message: format!("must lie in (0, 90) degrees (got {a})"),
             });
         }
+        if let Some(d) = self
+            .actuator
+            .creep
+            .and_then(|c| c.decades)
+            .filter(|d| !(1..=actuator::MAX_CREEP_DECADES).contains(d))
+        {
+            issues.push(ConfigIssue {
+                path: p("actuator.creep.decades"),
+                message: format!(
+                    "must lie in 1..={} (one creep term per decade; got {d})",
+                    actuator::MAX_CREEP_DECADES
+                ),
+            });
+        }
         if let TipConfig::PowerLaw {
             profile_exponent: n,
             ..
