@@ -31,6 +31,8 @@ pub struct SimulateArgs {
 }
 
 pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
+    let sidecar = args.out.with_extension("toml");
+    refuse_to_overwrite_inputs(&[&args.out, &sidecar], &[&args.config, &args.drive])?;
     let (mut cfg, warnings) = SimConfigFile::load(&args.config)?;
     for w in &warnings {
         eprintln!("warning: {w}");
@@ -66,7 +68,6 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
     if tty {
         eprintln!();
     }
-    let sidecar = args.out.with_extension("toml");
     write_atomic(&args.out, &sidecar, &rec)?;
     let elapsed = started.elapsed().as_secs_f64();
     println!(
@@ -84,6 +85,27 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
         profile.period_samples as f64 / fs,
         profile.excitation_start as f64 / fs
     );
+    Ok(())
+}
+
+/// Refuses, before any work, an output that is one of the inputs: the sidecar goes next to
+/// `--out` as `.toml`, and `--out run.csv --config run.toml` would replace the configuration
+/// with the recording's sidecar.
+fn refuse_to_overwrite_inputs(outputs: &[&Path], inputs: &[&Path]) -> anyhow::Result<()> {
+    for out in outputs {
+        let Ok(out_abs) = std::fs::canonicalize(out) else {
+            continue; // not there yet: nothing to overwrite
+        };
+        for input in inputs {
+            if std::fs::canonicalize(input).is_ok_and(|i| i == out_abs) {
+                anyhow::bail!(
+                    "{} would overwrite the input {}: choose another --out (the sidecar is written next to it as .toml)",
+                    out.display(),
+                    input.display()
+                );
+            }
+        }
+    }
     Ok(())
 }
 
@@ -109,4 +131,31 @@ pub fn write_atomic(
     std::fs::rename(&tmp_toml, sidecar)?;
     std::fs::rename(&tmp_csv, csv)?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::refuse_to_overwrite_inputs;
+
+    /// `--out run.csv` with `--config run.toml` is refused, naming both; a new name is not.
+    #[test]
+    fn an_output_that_is_an_input_is_refused() {
+        let dir = std::env::temp_dir().join(format!("vp-sim-out-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let config = dir.join("run.toml");
+        std::fs::write(&config, "x = 1\n").unwrap();
+        let out = dir.join("run.csv");
+        let sidecar = out.with_extension("toml");
+        let err = refuse_to_overwrite_inputs(&[&out, &sidecar], &[&config])
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("run.toml") && err.contains("--out"), "{err}");
+        let fresh = dir.join("other.csv");
+        assert!(
+            refuse_to_overwrite_inputs(&[&fresh, &fresh.with_extension("toml")], &[&config])
+                .is_ok()
+        );
+        assert_eq!(std::fs::read_to_string(&config).unwrap(), "x = 1\n");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }
