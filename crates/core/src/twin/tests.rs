@@ -44,19 +44,25 @@ fn base_config() -> TwinConfig {
     }
 }
 
+/// The twin of `cfg` (which must be valid) held with its base at 150 nm, 50 nm past the
+/// contact point, for ten samples: its last sample, at rest in contact.
+fn at_rest_pressed_in(cfg: &TwinConfig) -> TwinSample {
+    assert!(cfg.validate("").is_empty(), "{:?}", cfg.validate(""));
+    let mut twin = Twin::new(cfg, 8000.0);
+    let mut s = twin.step(0.0);
+    for _ in 0..10 {
+        s = twin.step(1.5);
+    }
+    assert!(s.truth.in_contact, "{:?}", cfg.tip);
+    s
+}
+
 /// Static Hertz: at rest, the lever deflection and the indentation satisfy
 /// K·d = (4/3)·E/(1−ν²)·√R·h^{3/2} and d + h = b − contact point.
 #[test]
 fn static_hertz_indentation() {
-    let cfg = base_config();
-    assert!(cfg.validate("").is_empty());
-    let mut twin = Twin::new(&cfg, 8000.0);
-    let mut s = twin.step(0.0);
-    for _ in 0..10 {
-        s = twin.step(1.5); // base 150 nm: 50 nm past the contact point
-    }
+    let s = at_rest_pressed_in(&base_config());
     let t = s.truth;
-    assert!(t.in_contact);
     let e = 1e6;
     let hertz = 4.0 / 3.0 * e / 0.75 * (20e-9f64).sqrt() * t.indentation_m.powf(1.5);
     assert!(
@@ -383,14 +389,7 @@ fn a_power_law_tip_carries_its_elastic_load() {
         profile_exponent: n,
         profile_coefficient: b_nm,
     };
-    assert!(cfg.validate("").is_empty());
-    let mut twin = Twin::new(&cfg, 8000.0);
-    let mut s = twin.step(0.0);
-    for _ in 0..10 {
-        s = twin.step(1.5);
-    }
-    let t = s.truth;
-    assert!(t.in_contact);
+    let t = at_rest_pressed_in(&cfg).truth;
     let h_nm = t.indentation_m * 1e9;
     let k3 = 3.0 * std::f64::consts::PI / 4.0;
     let a_nm = (h_nm / (k3 * b_nm)).powf(1.0 / n);
@@ -475,14 +474,7 @@ fn a_film_stiffens_the_contact_by_its_contact_radius() {
         let mut cfg = base_config();
         cfg.tip = tip;
         cfg.sample.thickness_nm = Some(thickness_nm);
-        assert!(cfg.validate("").is_empty());
-        let mut twin = Twin::new(&cfg, 8000.0);
-        let mut s = twin.step(0.0);
-        for _ in 0..10 {
-            s = twin.step(1.5);
-        }
-        let t = s.truth;
-        assert!(t.in_contact, "{tip:?}");
+        let t = at_rest_pressed_in(&cfg).truth;
         let (p_free, a) = free(t.indentation_m);
         let chi = a / (thickness_nm * 1e-9);
         let factor =
