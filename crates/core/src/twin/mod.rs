@@ -526,6 +526,9 @@ pub struct Twin {
     actuator: Actuator,
     material: MaterialState,
     contact: Contact,
+    /// `contact.force_factor()`, asked for in every sample's solve: a power-law tip's costs
+    /// two gamma functions and a `powf`, so it is worked out once here.
+    force_factor: f64,
     slot: SampleSlot,
     in_contact: bool,
     lever: Option<SecondOrder>,
@@ -551,6 +554,7 @@ impl Twin {
             actuator: Actuator::new(&cfg.actuator, fs_hz),
             material: MaterialState::new(&cfg.sample.material, fs_hz),
             contact: cfg.contact(),
+            force_factor: cfg.contact().force_factor(),
             slot: SampleSlot::Soft,
             in_contact: false,
             lever: cfg
@@ -701,7 +705,7 @@ impl Twin {
         // The contact carries the lever's force K·d, the adhesion, less any external force on
         // the lever: K·d = F_contact − F_adh + F_ext.
         let f_net_n = f_adh_n - f_ext_n;
-        let cf = self.contact.force_factor();
+        let cf = self.force_factor;
         let contact = self.contact;
         let (alpha, beta) = self.material.affine();
         let gap_m = (base_nm - self.soft_surface_nm()) * 1e-9;
