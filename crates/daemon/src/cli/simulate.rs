@@ -28,11 +28,18 @@ pub struct SimulateArgs {
     /// Override the twin's seed.
     #[arg(long)]
     pub seed: Option<u64>,
+    /// Replace a recording already at `--out` (without it, an existing samples file or
+    /// sidecar there is an error: a recording is a measurement, not a cache).
+    #[arg(long)]
+    pub force: bool,
 }
 
 pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
     let sidecar = args.out.with_extension("toml");
     refuse_to_overwrite_inputs(&[&args.out, &sidecar], &[&args.config, &args.drive])?;
+    if !args.force {
+        refuse_to_replace_recording(&[&args.out, &sidecar])?;
+    }
     let (mut cfg, warnings) = SimConfigFile::load(&args.config)?;
     for w in &warnings {
         eprintln!("warning: {w}");
@@ -109,6 +116,18 @@ fn refuse_to_overwrite_inputs(outputs: &[&Path], inputs: &[&Path]) -> anyhow::Re
     Ok(())
 }
 
+/// Refuses outputs that already exist: simulating over a recording would lose it (the user
+/// may have put a real one there, or a simulation whose seed they no longer have).
+fn refuse_to_replace_recording(outputs: &[&Path]) -> anyhow::Result<()> {
+    if let Some(there) = outputs.iter().find(|p| p.exists()) {
+        anyhow::bail!(
+            "{} already exists: choose another --out, or pass --force to replace the recording there",
+            there.display()
+        );
+    }
+    Ok(())
+}
+
 /// Writes both files through temporary names and renames them into place.
 pub fn write_atomic(
     csv: &Path,
@@ -135,7 +154,7 @@ pub fn write_atomic(
 
 #[cfg(test)]
 mod tests {
-    use super::refuse_to_overwrite_inputs;
+    use super::{refuse_to_overwrite_inputs, refuse_to_replace_recording};
 
     /// `--out run.csv` with `--config run.toml` is refused, naming both; a new name is not.
     #[test]
@@ -156,6 +175,22 @@ mod tests {
                 .is_ok()
         );
         assert_eq!(std::fs::read_to_string(&config).unwrap(), "x = 1\n");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// An existing sidecar alone is enough to refuse, and the error names it and `--force`.
+    #[test]
+    fn an_existing_recording_is_not_replaced() {
+        let dir = std::env::temp_dir().join(format!("vp-sim-exists-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let out = dir.join("rec.csv");
+        let sidecar = out.with_extension("toml");
+        assert!(refuse_to_replace_recording(&[&out, &sidecar]).is_ok());
+        std::fs::write(&sidecar, "format = \"recording/1\"\n").unwrap();
+        let err = refuse_to_replace_recording(&[&out, &sidecar])
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("rec.toml") && err.contains("--force"), "{err}");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }
