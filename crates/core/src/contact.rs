@@ -500,14 +500,29 @@ impl BluntedCone {
 /// solve their contacts with it.
 pub fn decreasing_root(
     g_and_slope: impl Fn(f64) -> (f64, f64),
-    (mut lo, mut hi): (f64, f64),
+    bracket: (f64, f64),
     x0: f64,
     tol: f64,
     max_iter: usize,
 ) -> f64 {
+    decreasing_root_and_slope(g_and_slope, bracket, x0, tol, max_iter).0
+}
+
+/// [`decreasing_root`], with the slope `g'` of its last evaluation, taken within `tol` of
+/// the root (0 if `max_iter` is 0). The twin needs the slope at its root for every sample;
+/// asking `g_and_slope` for it again cost a third of its contact solve.
+pub fn decreasing_root_and_slope(
+    g_and_slope: impl Fn(f64) -> (f64, f64),
+    (mut lo, mut hi): (f64, f64),
+    x0: f64,
+    tol: f64,
+    max_iter: usize,
+) -> (f64, f64) {
     let mut d = x0.clamp(lo, hi);
+    let mut last_slope = 0.0;
     for _ in 0..max_iter {
         let (gd, slope) = g_and_slope(d);
+        last_slope = slope;
         if gd > 0.0 {
             lo = d;
         } else {
@@ -523,7 +538,7 @@ pub fn decreasing_root(
             break;
         }
     }
-    d
+    (d, last_slope)
 }
 
 #[cfg(test)]

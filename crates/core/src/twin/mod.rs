@@ -25,7 +25,7 @@ pub mod dynamics;
 pub mod feedforward;
 pub mod material;
 
-use crate::contact::{decreasing_root, Contact, TipGeometry};
+use crate::contact::{decreasing_root, decreasing_root_and_slope, Contact, TipGeometry};
 use crate::prony::PronySeries;
 use actuator::{Actuator, ActuatorConfig};
 use detector::{Detector, DetectorConfig};
@@ -780,10 +780,17 @@ impl Twin {
             // Two or three Newton steps from the previous solution are what keep the twin far
             // faster than real time.
             let tol = 1e-14 * (1.0 + gap_m.abs());
-            let d = decreasing_root(g_and_slope, (d_lo, gap_m.max(d_lo)), self.last_d_m, tol, 60);
+            let (d, slope) = decreasing_root_and_slope(
+                g_and_slope,
+                (d_lo, gap_m.max(d_lo)),
+                self.last_d_m,
+                tol,
+                60,
+            );
             let c = film(gap_m - d);
-            // dd/dF_ext = −(∂g/∂F_ext)/(∂g/∂d), times K.
-            let share = -unfilmed(alpha * cf * k_si, c) / g_and_slope(d).1;
+            // dd/dF_ext = −(∂g/∂F_ext)/(∂g/∂d), times K: the slope from the solve's last
+            // step, within `tol` of the root, rather than one more evaluation.
+            let share = -unfilmed(alpha * cf * k_si, c) / slope;
             (d, unfilmed(cf * (k_si * d + f_net_n), c), share)
         } else if let Some(d) = self.neck_hold(gap_m, d_lo, commit) {
             (d, 0.0, 1.0)
