@@ -504,6 +504,13 @@ fn real_jpk_diagnose_json_keeps_the_documented_keys() {
     );
     assert_eq!(ids[0], "adhesion");
     assert!(significant[0]);
+    // Look-alikes of adhesion, if any: catalog effects outside the chosen model, within the gap.
+    for l in v["look_alikes"].as_array().expect("look_alikes[]") {
+        let id = l["id"].as_str().unwrap();
+        assert!(CATALOG.contains(&id) && id != "adhesion", "{l}");
+        let gap = finite(l, "gap");
+        assert!((0.0..6.0).contains(&gap), "{l}");
+    }
     for e in effects {
         finite(e, "evidence");
         for (name, p) in e["params"].as_object().expect("params") {

@@ -264,6 +264,67 @@ pub struct Diagnosis {
     pub simulations: Simulations,
     pub base_position: BasePosition,
     pub weighting: Weighting,
+    /// Other effects that explain the residual all but as well as the top one, each
+    /// significant on its own: this recording cannot tell them apart ([`LookAlike`]).
+    pub look_alikes: Vec<LookAlike>,
+}
+
+/// A look-alike of the top-ranked effect: significant on its own, and ranked within
+/// [`LOOK_ALIKE_GAP`] of it (held-out χ² drop less `ln N` per parameter).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct LookAlike {
+    pub id: &'static str,
+    /// How far below the top effect it ranks, in held-out χ² units (≥ 0).
+    pub gap: f64,
+    /// What measurement would separate the two, where there is a known one.
+    pub separated_by: Option<&'static str>,
+}
+
+/// Ranking gap, in held-out χ² units (twice a log-likelihood ratio), under which a rival
+/// counts as a look-alike: below 6 the evidence for one over the other is no more than
+/// "positive" on Kass & Raftery's scale (1995), short of "strong".
+pub const LOOK_ALIKE_GAP: f64 = 6.0;
+
+/// What separates two look-alikes, for the pairs the catalog knows to trade (either order).
+fn separated_by(a: Effect, b: Effect) -> Option<&'static str> {
+    use Effect::*;
+    let pair = |x: Effect, y: Effect| (a == x && b == y) || (a == y && b == x);
+    if pair(ThermalDrift, PiezoCreep) {
+        Some("a hold with the drive still and long against the creep time: creep settles, drift goes on; or a measured_height_nm column, which shows the creep")
+    } else if pair(ChannelDelay, HydrodynamicDrag)
+        || pair(ChannelDelay, InstrumentResonance)
+        || pair(ChannelDelay, MissingRelaxation)
+    {
+        Some("a reference_deflection_v channel on a hard sample: a delay or a scanner mode shows there too, a drag only off the surface, the material not at all")
+    } else if pair(HydrodynamicDrag, MissingRelaxation)
+        || pair(InstrumentResonance, MissingRelaxation)
+    {
+        Some("the same excitation at a second setpoint: the material's terms scale with the contact, a drag or a mode does not")
+    } else if pair(TipGeometry, SubstrateEffect) {
+        Some("indentations to two depths, or on a thicker part of the sample: a film's effect grows with depth over its thickness, a tip's shape does not depend on the sample")
+    } else if pair(PiezoHysteresis, MissingRelaxation) || pair(PiezoHysteresis, PiezoCreep) {
+        Some("a measured_height_nm column, or the same drive on a hard reference: the piezo's path shows there, the material does not")
+    } else {
+        None
+    }
+}
+
+/// The look-alikes of the top effect among `ranked` (the significant single effects and
+/// their ranking scores, best first): those within [`LOOK_ALIKE_GAP`] of it, less any the
+/// chosen model took in beside it (a pair's second effect is no alternative to its first).
+fn look_alikes_of(ranked: &[(Effect, f64)], chosen: &[Effect]) -> Vec<LookAlike> {
+    let Some(&(top, best)) = ranked.first() else {
+        return vec![];
+    };
+    ranked[1..]
+        .iter()
+        .filter(|(e, s)| best - s < LOOK_ALIKE_GAP && !chosen.contains(e))
+        .map(|&(e, s)| LookAlike {
+            id: e.id(),
+            gap: best - s,
+            separated_by: separated_by(top, e),
+        })
+        .collect()
 }
 
 /// Twin simulations a diagnosis ran, by stage.
@@ -952,6 +1013,7 @@ pub fn diagnose_with(
         });
     }
     sig_singles.sort_by(|a, b| b.2.total_cmp(&a.2));
+    let ranked: Vec<(Effect, f64)> = sig_singles.iter().map(|(e, _, s)| (*e, *s)).collect();
     let sims_refit = problem.simulations();
     let mut chosen: Option<Fitted> = sig_singles.first().map(|s| s.1.clone());
     let mut chosen_effects: Vec<Effect> =
@@ -1022,6 +1084,7 @@ pub fn diagnose_with(
         refits: sims_refit - sims_screen,
         pairs: problem.simulations() - sims_refit,
     };
+    let look_alikes = look_alikes_of(&ranked, &chosen_effects);
     // Rank: the chosen model's effects first (marked significant), everything else after.
     for r in reports.iter_mut() {
         r.significant = chosen_effects.iter().any(|e| e.id() == r.id);
@@ -1089,6 +1152,7 @@ pub fn diagnose_with(
         simulations,
         base_position,
         weighting: problem.weighting(),
+        look_alikes,
     })
 }
 
@@ -1906,6 +1970,34 @@ mod tests {
     /// stage's position: a hysteretic piezo recorded with its drive in nm is still named as
     /// such, as it is with its drive in volts — there beside a height sensor that read the
     /// true position, which a drive in volts does not hand the base to.
+    /// Rivals within the gap are look-alikes, with the measurement that separates a known
+    /// pair (in either order); one further behind is not, nor one the model took in.
+    #[test]
+    fn look_alikes_are_the_close_rivals_left_out() {
+        use crate::diagnose::{look_alikes_of, separated_by, Effect::*};
+        let ranked = [
+            (ThermalDrift, 142.5),
+            (PiezoCreep, 141.7),
+            (MissingRelaxation, 137.0),
+            (Adhesion, 130.0),
+        ];
+        let l = look_alikes_of(&ranked, &[ThermalDrift]);
+        let ids: Vec<_> = l.iter().map(|l| l.id).collect();
+        assert_eq!(ids, ["piezo_creep", "missing_relaxation"]);
+        assert!((l[0].gap - 0.8).abs() < 1e-9 && (l[1].gap - 5.5).abs() < 1e-9);
+        assert!(l[0].separated_by.unwrap().contains("hold"));
+        assert_eq!(l[1].separated_by, None);
+        assert_eq!(
+            separated_by(PiezoCreep, ThermalDrift),
+            separated_by(ThermalDrift, PiezoCreep)
+        );
+        // The pair's second effect is in the model, not an alternative to it.
+        let l = look_alikes_of(&ranked, &[ThermalDrift, PiezoCreep]);
+        assert_eq!(l.len(), 1);
+        assert_eq!(l[0].id, "missing_relaxation");
+        assert!(look_alikes_of(&[], &[]).is_empty());
+    }
+
     #[test]
     fn a_commanded_displacement_still_shows_piezo_hysteresis() {
         let mut twin = nominal_twin(11);

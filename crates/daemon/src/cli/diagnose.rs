@@ -126,6 +126,11 @@ pub fn diagnosis_json(file: &str, d: &Diagnosis, seconds: f64) -> Value {
             "samples": d.noise.samples,
             "source": d.noise.source,
         },
+        "look_alikes": d.look_alikes.iter().map(|l| json!({
+            "id": l.id,
+            "gap": l.gap,
+            "separated_by": l.separated_by,
+        })).collect::<Vec<_>>(),
         "base_position": d.base_position.id(),
         "weighting": d.weighting.id(),
         "cost": {
@@ -263,6 +268,20 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
                 );
             } else {
                 println!("    {} = {:.4e} {}", p.name, p.value, p.unit);
+            }
+        }
+    }
+    if let (Some(top), false) = (sig.first(), d.look_alikes.is_empty()) {
+        for l in &d.look_alikes {
+            println!(
+                "  look-alike: {} explains it all but as well ({:.1} χ² units behind {}, under the {:.0} that would make the difference strong): this recording cannot tell them apart",
+                l.id,
+                l.gap,
+                top.id,
+                viscoprobe_core::diagnose::LOOK_ALIKE_GAP
+            );
+            if let Some(how) = l.separated_by {
+                println!("    to separate them: {how}");
             }
         }
     }
