@@ -2245,6 +2245,17 @@ mod tests {
             .find(|p| p.name == "profile_exponent")
             .unwrap_or_else(|| panic!("not the power-law form: {:?}", d.effects[0].params));
         assert!((exponent.value - n).abs() < 0.15 * n, "{exponent:?}");
+        // The depth the moduli are read at: the nominal fit's deepest, not the default.
+        let depth = d.effects[0]
+            .params
+            .iter()
+            .find(|p| p.name == "force_matched_at_depth_nm")
+            .expect("the matching depth is reported");
+        assert!(
+            depth.value > 1.0
+                && depth.value != crate::diagnose::model::DEFAULT_TIP_REFERENCE_DEPTH_NM,
+            "{depth:?}"
+        );
         assert!(d.against_floor.after_at_floor, "{:?}", d.against_floor);
     }
 

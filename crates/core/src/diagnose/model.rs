@@ -885,6 +885,16 @@ impl Problem {
         th[0].exp()
     }
 
+    /// The depth at which a power-law tip carries the declared tip's force, nm
+    /// ([`Problem::tip_reference_depth_nm`], or [`DEFAULT_TIP_REFERENCE_DEPTH_NM`] while unset).
+    pub fn power_law_reference_depth_nm(&self) -> f64 {
+        if self.tip_reference_depth_nm > 0.0 {
+            self.tip_reference_depth_nm
+        } else {
+            DEFAULT_TIP_REFERENCE_DEPTH_NM
+        }
+    }
+
     /// The power-law tip of profile exponent `n` that carries the declared tip's force at
     /// the reference depth ([`Problem::tip_reference_depth_nm`]): equal compliances give equal
     /// forces there, and at `n` = the declared exponent it is the declared tip.
@@ -893,11 +903,7 @@ impl Problem {
     /// ([`crate::contact`]), equal `y/u` at depth h asks for
     /// `K^{1/n} = h^m·c/(y(h)·(1−ν²)(n+1)/(2n))`, c and y the declared tip's.
     pub fn power_law_tip(&self, n: f64) -> TipConfig {
-        let h_nm = if self.tip_reference_depth_nm > 0.0 {
-            self.tip_reference_depth_nm
-        } else {
-            DEFAULT_TIP_REFERENCE_DEPTH_NM
-        };
+        let h_nm = self.power_law_reference_depth_nm();
         let h = h_nm * 1e-9;
         let declared = crate::contact::Contact {
             tip: self.declared_tip.geometry(),
@@ -1328,6 +1334,11 @@ impl Problem {
             let m = |lnn: f64| 1.0 + (-lnn).exp();
             let (lo, hi) = (m(x + 1.96 * s), m(x - 1.96 * s));
             out.push(("load_exponent".into(), "1", m(x), [lo.min(hi), lo.max(hi)]));
+            // Where its profile is matched to the declared tip: the material's moduli are
+            // the ones the declared tip gives at that depth (the profile has no radius or
+            // angle of its own to read them against).
+            let d = self.power_law_reference_depth_nm();
+            out.push(("force_matched_at_depth_nm".into(), "nm", d, [d, d]));
         }
         if let Some(o) = spec
             .offset_of(effect)

@@ -334,6 +334,17 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
     };
     println!("material before: {}", m(&d.before));
     println!("material after:  {}", m(&d.after));
+    // A power-law tip has no radius or angle: its moduli are read against the declared tip.
+    if let Some(depth) = sig
+        .iter()
+        .flat_map(|e| &e.params)
+        .find(|p| p.name == "force_matched_at_depth_nm")
+    {
+        println!(
+            "  (after: moduli as the declared tip would give them at {:.0} nm, where the power-law profile carries its force)",
+            depth.value
+        );
+    }
     let a = |s: &FitSummary| match s.actuator.q {
         Some(q) => format!("lag {:.2} µs, Q {q:.2}", s.actuator.lag_s * 1e6),
         None => "ideal (no lag)".to_string(),
