@@ -1966,15 +1966,11 @@ mod tests {
         })
     }
 
-    /// `drive_nm` may be a voltage times a calibrated sensitivity rather than a closed-loop
-    /// stage's position: a hysteretic piezo recorded with its drive in nm is still named as
-    /// such, as it is with its drive in volts — there beside a height sensor that read the
-    /// true position, which a drive in volts does not hand the base to.
     /// Rivals within the gap are look-alikes, with the measurement that separates a known
     /// pair (in either order); one further behind is not, nor one the model took in.
     #[test]
     fn look_alikes_are_the_close_rivals_left_out() {
-        use crate::diagnose::{look_alikes_of, separated_by, Effect::*};
+        use crate::diagnose::{look_alikes_of, separated_by, Effect, Effect::*};
         let ranked = [
             (ThermalDrift, 142.5),
             (PiezoCreep, 141.7),
@@ -1996,8 +1992,23 @@ mod tests {
         assert_eq!(l.len(), 1);
         assert_eq!(l[0].id, "missing_relaxation");
         assert!(look_alikes_of(&[], &[]).is_empty());
+        // A separating measurement is only ever named for a pair the catalog knows to trade.
+        for a in Effect::ALL {
+            for b in Effect::ALL {
+                if separated_by(a, b).is_some() {
+                    assert!(
+                        a.look_alikes().contains(&b) || b.look_alikes().contains(&a),
+                        "{a:?} and {b:?} are not catalog look-alikes"
+                    );
+                }
+            }
+        }
     }
 
+    /// `drive_nm` may be a voltage times a calibrated sensitivity rather than a closed-loop
+    /// stage's position: a hysteretic piezo recorded with its drive in nm is still named as
+    /// such, as it is with its drive in volts — there beside a height sensor that read the
+    /// true position, which a drive in volts does not hand the base to.
     #[test]
     fn a_commanded_displacement_still_shows_piezo_hysteresis() {
         let mut twin = nominal_twin(11);

@@ -62,9 +62,9 @@ pub struct Detector {
     rng: StdRng,
     /// AR(1) poles and states, one per octave: their sum has a 1/f spectrum in between.
     pink: Vec<(f64, f64, f64)>,
-    /// Past clean values for the delay line, and its taps ([`fractional_delay_taps`]; none
-    /// without a delay).
+    /// Past clean values for the delay line.
     history: std::collections::VecDeque<f64>,
+    /// The delay line's taps ([`fractional_delay_taps`]); none without a delay.
     delay_taps: Option<(usize, [f64; 4])>,
     sample: u64,
 }
@@ -80,7 +80,7 @@ impl Detector {
                 (a, gain, 0.0)
             })
             .collect();
-        // The four taps of the delay line (see `step`) reach one sample past ⌈delay⌉ + 1.
+        // The delay line's four taps reach ⌊delay⌋ + 2 samples behind the newest.
         let depth = (cfg.delay_s * fs_hz).ceil() as usize + 4;
         Self {
             cfg: cfg.clone(),

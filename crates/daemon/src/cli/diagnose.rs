@@ -271,7 +271,7 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
             }
         }
     }
-    if let (Some(top), false) = (sig.first(), d.look_alikes.is_empty()) {
+    if let Some(top) = sig.first() {
         for l in &d.look_alikes {
             println!(
                 "  look-alike: {} explains it all but as well ({:.1} χ² units behind {}, under the {:.0} that would make the difference strong): this recording cannot tell them apart",
