@@ -94,11 +94,6 @@ impl Creep {
     pub fn terms(&self) -> impl Iterator<Item = (f64, f64)> + '_ {
         (0..self.decades.unwrap_or(1)).map(|k| (self.fraction, self.tau_s * 10f64.powi(k as i32)))
     }
-
-    /// The creep a held voltage ends at, as a share of `g·v`.
-    pub fn total_fraction(&self) -> f64 {
-        self.fraction * self.decades.unwrap_or(1) as f64
-    }
 }
 
 /// Actuator state.
@@ -289,7 +284,6 @@ mod tests {
             tau_s: 0.01,
             decades: Some(5),
         };
-        assert!((creep.total_fraction() - 0.1).abs() < 1e-15);
         let cfg = ActuatorConfig {
             gain_nm_per_v: 50.0,
             modes: vec![],

@@ -550,11 +550,12 @@ pub struct Twin {
 impl Twin {
     /// Builds a twin; call [`TwinConfig::validate`] first — invalid values give nonsense here.
     pub fn new(cfg: &TwinConfig, fs_hz: f64) -> Self {
+        let contact = cfg.contact();
         let mut twin = Self {
             actuator: Actuator::new(&cfg.actuator, fs_hz),
             material: MaterialState::new(&cfg.sample.material, fs_hz),
-            contact: cfg.contact(),
-            force_factor: cfg.contact().force_factor(),
+            contact,
+            force_factor: contact.force_factor(),
             slot: SampleSlot::Soft,
             in_contact: false,
             lever: cfg
