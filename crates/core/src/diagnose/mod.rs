@@ -36,10 +36,12 @@ pub mod fit;
 pub mod locate;
 pub mod model;
 pub mod noise;
+pub mod witness;
 
 use crate::analysis;
 use crate::prony::PronySeries;
 use crate::recording::{Drive, Recording};
+use crate::twin::actuator::Actuator;
 use crate::twin::TipConfig;
 use fan::Fan;
 use fit::{
@@ -58,6 +60,7 @@ use noise::NoiseModel;
 use serde::Serialize;
 use std::sync::OnceLock;
 use thiserror::Error;
+use witness::HeightWitness;
 
 /// The catalog of physics a nominal twin may have left out, by their exact report ids.
 pub const CATALOG: [&str; 12] = [
@@ -136,6 +139,11 @@ pub struct EffectReport {
     pub params: Vec<Param>,
     /// Held-out NRMSE with this effect added (alone, or beside `given`).
     pub held_out_nrmse: Option<f64>,
+    /// The part of `evidence` (and of `train_drop`, alike) that the stage's height sensor
+    /// gave: the drop of its held-out χ² along this model's path of the piezo
+    /// ([`witness`]). Only where a sensor sits beside a drive in volts, and only for models
+    /// with creep or hysteresis; negative where the sensor refutes the path.
+    pub sensor_evidence: Option<f64>,
     pub description: &'static str,
 }
 
@@ -267,6 +275,9 @@ pub struct Diagnosis {
     /// Other effects that explain the residual all but as well as the top one, each
     /// significant on its own: this recording cannot tell them apart ([`LookAlike`]).
     pub look_alikes: Vec<LookAlike>,
+    /// The noise of the stage's height sensor, nm, where it witnessed the piezo's path
+    /// (a sensor beside a drive in volts; [`EffectReport::sensor_evidence`]).
+    pub sensor_sigma_nm: Option<f64>,
 }
 
 /// A look-alike of the top-ranked effect: significant on its own, and ranked within
@@ -354,6 +365,8 @@ struct Judgement {
     held_drop: f64,
     /// The train drop it had to beat.
     penalty: f64,
+    /// Of `train_drop` and `held_drop`, what the height sensor gave ([`witness`]).
+    sensor: Option<(f64, f64)>,
 }
 
 /// What steps 2 to 4 of a diagnosis (locate, screen, refit each candidate) found from one
@@ -555,8 +568,9 @@ pub fn diagnose_with(
     // force-feedback hold). Deflection is then modelled against the sensor, so the piezo
     // effects, which act between command and position, are out of this diagnosis's sight
     // (see `base_position`). A drive in volts is what the piezo really received, so it stays
-    // the base beside a sensor: the piezo's creep and hysteresis then stay in sight, and the
-    // sensor's own noise stays out of the model's input.
+    // the base beside a sensor: the piezo's creep and hysteresis then stay in sight, the
+    // sensor's own noise stays out of the model's input, and the sensor witnesses each
+    // model's path of the piezo instead (`witness`).
     let (drive, gain0, base_position) = match (&rec.drive, &rec.measured_height_nm) {
         (Drive::Nanometres(_), Some(h)) if h.iter().all(|v| v.is_finite()) => {
             (h.clone(), 1.0, BasePosition::HeightSensor)
@@ -951,12 +965,35 @@ pub fn diagnose_with(
         plain_forms,
         sims_screen,
     } = ex;
+    // The stage's height sensor beside a drive in volts reads the piezo's own path: each
+    // model's path is scored there too (`witness`).
+    let witness = match (base_position, &rec.measured_height_nm) {
+        (BasePosition::Drive, Some(h)) => {
+            HeightWitness::new(&drive, h, fs, &problem.train, &problem.held)
+        }
+        _ => None,
+    };
+    let sensor_chi2 = |f: &Fitted| -> Option<(f64, f64)> {
+        let w = witness.as_ref()?;
+        Some(
+            piezo_path(&problem, &f.spec, &f.theta)
+                .and_then(|p| w.chi2(&p))
+                .unwrap_or(w.nominal),
+        )
+    };
     let judge = |base: &Fitted, cand: &Fitted| -> Judgement {
         let k = (model::n_params(&problem, &cand.spec) as f64
             - model::n_params(&problem, &base.spec) as f64)
             .max(1.0);
-        let train_drop = base.eval.chi2_train - cand.eval.chi2_train;
-        let held_drop = base.eval.chi2_held - cand.eval.chi2_held;
+        let piezo =
+            |f: &Fitted| f.spec.has(Effect::PiezoCreep) || f.spec.has(Effect::PiezoHysteresis);
+        let sensor = (piezo(base) || piezo(cand))
+            .then(|| sensor_chi2(base).zip(sensor_chi2(cand)))
+            .flatten()
+            .map(|(b, c)| (b.0 - c.0, b.1 - c.1));
+        let (s_train, s_held) = sensor.unwrap_or((0.0, 0.0));
+        let train_drop = base.eval.chi2_train - cand.eval.chi2_train + s_train;
+        let held_drop = base.eval.chi2_held - cand.eval.chi2_held + s_held;
         let n_ho = problem.held.len() as f64;
         let excess = (base.eval.chi2_held - n_ho).max(0.0);
         let penalty = k * n_tr.ln() + th.train_margin;
@@ -967,6 +1004,7 @@ pub fn diagnose_with(
             train_drop,
             held_drop,
             penalty,
+            sensor,
         }
     };
     let mut reports: Vec<EffectReport> = vec![];
@@ -991,6 +1029,7 @@ pub fn diagnose_with(
             refitted: true,
             params: params_of(&problem, f, *e),
             held_out_nrmse: Some(held_nrmse(&problem, f)),
+            sensor_evidence: j.sensor.map(|s| s.1),
             description: e.describe(),
         });
     }
@@ -1009,6 +1048,7 @@ pub fn diagnose_with(
             refitted: false,
             params: vec![],
             held_out_nrmse: None,
+            sensor_evidence: None,
             description: e.describe(),
         });
     }
@@ -1072,6 +1112,7 @@ pub fn diagnose_with(
                     r.bic_penalty = j.penalty;
                     r.given = Some(a.id());
                     r.held_out_nrmse = Some(held_nrmse(&problem, &fp));
+                    r.sensor_evidence = j.sensor.map(|s| s.1);
                 }
                 chosen_effects.push(b);
                 chosen = Some(fp);
@@ -1153,6 +1194,7 @@ pub fn diagnose_with(
         base_position,
         weighting: problem.weighting(),
         look_alikes,
+        sensor_sigma_nm: witness.as_ref().map(|w| w.sigma_nm),
     })
 }
 
@@ -1249,6 +1291,21 @@ fn held_spread_v(problem: &Problem) -> f64 {
         .sum::<f64>()
         / n)
         .sqrt()
+}
+
+/// The piezo's path (nm) under model `spec` at `th`: the drive through its twin's actuator,
+/// gain, creep and hysteresis, without the modes (a height sensor on the scanner need not
+/// see a frame's mode, and the witness has its own terms for the actuator's linear
+/// dynamics). `None` for a model with neither creep nor hysteresis: its path is the drive
+/// itself, which the witness scores as [`HeightWitness::nominal`].
+fn piezo_path(problem: &Problem, spec: &ModelSpec, th: &[f64]) -> Option<Vec<f64>> {
+    if !spec.has(Effect::PiezoCreep) && !spec.has(Effect::PiezoHysteresis) {
+        return None;
+    }
+    let mut cfg = problem.twin_config(spec, th).actuator;
+    cfg.modes.clear();
+    let mut actuator = Actuator::new(&cfg, problem.fs_hz);
+    Some(problem.drive.iter().map(|&v| actuator.step(v)).collect())
 }
 
 fn held_nrmse(problem: &Problem, f: &Fitted) -> f64 {
@@ -1937,8 +1994,8 @@ mod tests {
     use super::{
         diagnose, find_snap_in, split_train_held, BasePosition, DiagnoseOptions, Diagnosis, Verdict,
     };
-    use crate::recording::Drive;
-    use crate::twin::actuator::BoucWen;
+    use crate::recording::{Drive, Recording};
+    use crate::twin::actuator::{BoucWen, Creep};
     use crate::twin::detector::Mains;
     use crate::twin::TwinConfig;
 
@@ -2002,6 +2059,76 @@ mod tests {
                     );
                 }
             }
+        }
+    }
+
+    /// `twin` recorded over the corpus protocol at 5 kHz with its drive in volts and, when
+    /// `sensor_nm` is given, a height sensor reading the true base position with that much
+    /// white noise (seeded).
+    fn with_height_sensor(twin: &TwinConfig, sensor_nm: Option<f64>) -> Recording {
+        use rand::{Rng, SeedableRng};
+        let fs = 5000.0;
+        let (drive_v, _) = protocol_drive(fs);
+        let mut rec = simulate(twin, &drive_v, fs, None);
+        if let Some(sigma) = sensor_nm {
+            let (_, truth) = simulate_with_truth(twin, &drive_v, fs);
+            let mut rng = rand::rngs::StdRng::seed_from_u64(5);
+            let noise = |r: &mut rand::rngs::StdRng| r.sample::<f64, _>(rand_distr::StandardNormal);
+            rec.measured_height_nm = Some(
+                truth
+                    .iter()
+                    .map(|s| s.base_nm + sigma * noise(&mut rng))
+                    .collect(),
+            );
+        }
+        rec
+    }
+
+    /// A creep of 0.1 % (0.24 nm on this protocol's 236 nm travel) is below what the
+    /// deflection alone can name; the stage's height sensor (0.05 nm of noise) reads it on
+    /// the piezo's path and names it, and that evidence is reported apart.
+    #[test]
+    fn a_height_sensor_witnesses_a_creep_the_deflection_cannot_name() {
+        let mut twin = nominal_twin(21);
+        twin.actuator.creep = Some(Creep {
+            fraction: 1e-3,
+            tau_s: 0.5,
+            decades: None,
+        });
+        let opts = corpus_options();
+        let alone = diagnose(&with_height_sensor(&twin, None), &opts).unwrap();
+        assert_eq!(alone.verdict, Verdict::None, "{:?}", alone.effects[0]);
+        assert!(alone.sensor_sigma_nm.is_none());
+        let seen = diagnose(&with_height_sensor(&twin, Some(0.05)), &opts).unwrap();
+        assert_eq!(seen.verdict, Verdict::Mismatch);
+        let top = &seen.effects[0];
+        assert!(top.significant && top.id == "piezo_creep", "{top:?}");
+        let sigma = seen.sensor_sigma_nm.unwrap();
+        assert!((0.05..0.06).contains(&sigma), "sensor σ {sigma} nm");
+        let from_sensor = top.sensor_evidence.unwrap();
+        assert!(from_sensor > 100.0, "{top:?}");
+        assert!(from_sensor < top.evidence, "{top:?}");
+        let fraction = top.params.iter().find(|p| p.name == "fraction").unwrap();
+        assert!(
+            fraction.ci95[0] < 1e-3 && 1e-3 < fraction.ci95[1],
+            "{fraction:?}"
+        );
+    }
+
+    /// A surface drift under the same sensor: the sensor reads the piezo, not the sample, so
+    /// the drift is named, and a creep fitted in its place is refuted there.
+    #[test]
+    fn a_height_sensor_refutes_a_creep_that_is_a_drift() {
+        let mut twin = nominal_twin(22);
+        twin.sample.surface_drift_nm_per_s = Some(2.0);
+        let d = diagnose(&with_height_sensor(&twin, Some(0.05)), &corpus_options()).unwrap();
+        let top = &d.effects[0];
+        assert!(top.significant && top.id == "thermal_drift", "{top:?}");
+        assert_eq!(top.sensor_evidence, None);
+        let creep = d.effects.iter().find(|e| e.id == "piezo_creep").unwrap();
+        assert!(!creep.significant);
+        if let Some(s) = creep.sensor_evidence {
+            assert!(s < 0.0, "{creep:?}");
         }
     }
 

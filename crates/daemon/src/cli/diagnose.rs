@@ -94,6 +94,7 @@ pub fn diagnosis_json(file: &str, d: &Diagnosis, seconds: f64) -> Value {
             "bic_penalty": if e.bic_penalty.is_finite() { json!(e.bic_penalty) } else { Value::Null },
             "refitted": e.refitted,
             "held_out_nrmse": e.held_out_nrmse,
+            "sensor_evidence": e.sensor_evidence,
             "description": e.description,
             "params": e.params.iter().map(|p| (p.name.clone(), json!({
                 "value": p.value,
@@ -132,6 +133,7 @@ pub fn diagnosis_json(file: &str, d: &Diagnosis, seconds: f64) -> Value {
             "separated_by": l.separated_by,
         })).collect::<Vec<_>>(),
         "base_position": d.base_position.id(),
+        "sensor_sigma_nm": d.sensor_sigma_nm,
         "weighting": d.weighting.id(),
         "cost": {
             "simulations": d.simulations.total(),
@@ -260,6 +262,11 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
             "    evidence: held-out χ² drops by {:.1}{over} (train by {:.1}; BIC penalty {:.1})",
             e.evidence, e.train_drop, e.bic_penalty
         );
+        if let (Some(s), Some(sigma)) = (e.sensor_evidence, d.sensor_sigma_nm) {
+            println!(
+                "    of which the height sensor (σ {sigma:.3} nm) gave {s:.1}: the piezo's path this model fitted, read by the stage's own sensor"
+            );
+        }
         for p in &e.params {
             if p.ci95[0].is_finite() && p.ci95[1].is_finite() && p.ci95 != [p.value, p.value] {
                 println!(
