@@ -1762,8 +1762,11 @@ impl StartContext {
             ..nom.spec.with(&[Effect::TipGeometry])
         };
         let n0 = TipForm::declared_exponent(problem.declared_tip);
+        // Either side of the declared exponent where the fit may go (a cone's tip is at its
+        // bound: only blunter, `model::MIN_FITTED_PROFILE_EXPONENT`).
         let starts: Vec<Vec<f64>> = [0.8, 1.25]
             .iter()
+            .filter(|k| *k * n0 >= model::MIN_FITTED_PROFILE_EXPONENT)
             .map(|k| {
                 let mut t = nom.theta.clone();
                 t.push((k * n0).ln());

@@ -242,7 +242,8 @@ pub enum TipForm {
     /// with a rounded apex. One parameter, the depth below which it indents like the sphere.
     Blunted,
     /// A power-law profile `z ∝ r^n` (`P ∝ h^{1+1/n}`) in place of the declared shape: a
-    /// sphere worn flat (n > 2), a cone rounded or sharpened along its flank. One parameter,
+    /// sphere worn flat (n > 2) or sharper than declared (1 ≤ n < 2, towards a cone), a cone
+    /// rounded along its flank (n > 1); never below a cone ([`MIN_FITTED_PROFILE_EXPONENT`]). One parameter,
     /// the profile exponent; the profile's scale makes it carry the declared tip's force at
     /// [`Problem::tip_reference_depth_nm`], so the compliances keep their meaning as it
     /// moves and the declared exponent is the declared tip.
@@ -267,6 +268,26 @@ const BLUNTED_TIP_NAMES: &[(&str, &str)] = &[("transition_depth_nm", "nm")];
 
 /// The parameter of a power-law tip (fitted as its logarithm).
 const POWER_LAW_TIP_NAMES: &[(&str, &str)] = &[("profile_exponent", "1")];
+
+/// The smallest profile exponent a fitted tip may have: a cone's. An AFM tip is convex (a
+/// cone, a pyramid, a sphere, any of them worn or rounded); below 1 its flank would be
+/// concave, a cusp that no tip is made or worn into. The twin simulates such profiles
+/// (down to [`crate::twin::MIN_PROFILE_EXPONENT`]), but a diagnosis that let the tip take
+/// one would name `tip_geometry` for a contact that stiffens faster than a cone's with depth,
+/// which is what a film on a hard substrate does under a cone (load exponent above 2).
+pub const MIN_FITTED_PROFILE_EXPONENT: f64 = 1.0;
+
+/// Whether `tip` is a shape the diagnosis may fit: a power-law profile only down to
+/// [`MIN_FITTED_PROFILE_EXPONENT`] (the bound is hard: a fit's step beyond it is refused
+/// like any other unphysical point).
+fn tip_is_convex(tip: &TipConfig) -> bool {
+    match *tip {
+        TipConfig::PowerLaw {
+            profile_exponent, ..
+        } => profile_exponent >= MIN_FITTED_PROFILE_EXPONENT,
+        _ => true,
+    }
+}
 
 /// The forms of `thermal_drift`. Real thermal drift shifts the tip–sample distance at least
 /// as often as the detector's zero; the deflection a surface drift causes follows the
@@ -1043,7 +1064,7 @@ impl Problem {
             return None;
         }
         let cfg = self.twin_config(spec, th);
-        if !cfg.validate("").is_empty() {
+        if !cfg.validate("").is_empty() || !tip_is_convex(&cfg.tip) {
             return None;
         }
         self.simulations
