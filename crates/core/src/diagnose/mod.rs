@@ -60,7 +60,7 @@ use noise::NoiseModel;
 use serde::Serialize;
 use std::sync::OnceLock;
 use thiserror::Error;
-use witness::HeightWitness;
+use witness::{HeightWitness, ReferenceWitness};
 
 /// The catalog of physics a nominal twin may have left out, by their exact report ids.
 pub const CATALOG: [&str; 12] = [
@@ -144,6 +144,12 @@ pub struct EffectReport {
     /// ([`witness`]). Only where a sensor sits beside a drive in volts, and only for models
     /// with creep or hysteresis; negative where the sensor refutes the path.
     pub sensor_evidence: Option<f64>,
+    /// The part of `evidence` (and of `train_drop`, alike) that the hard reference's
+    /// deflection gave: the drop of its held-out χ² along this model's reading of the
+    /// reference ([`witness::ReferenceWitness`]). Only with a `reference_deflection_v`
+    /// column, and only for models with an effect of the instrument's chain (a delay, a
+    /// resonance, creep or hysteresis); negative where the reference refutes it.
+    pub reference_evidence: Option<f64>,
     pub description: &'static str,
 }
 
@@ -278,6 +284,9 @@ pub struct Diagnosis {
     /// The noise of the stage's height sensor, nm, where it witnessed the piezo's path
     /// (a sensor beside a drive in volts; [`EffectReport::sensor_evidence`]).
     pub sensor_sigma_nm: Option<f64>,
+    /// The noise of the reference channel, V, where it witnessed the models' chain
+    /// ([`EffectReport::reference_evidence`]).
+    pub reference_sigma_v: Option<f64>,
 }
 
 /// A look-alike of the top-ranked effect: significant on its own, and ranked within
@@ -367,6 +376,8 @@ struct Judgement {
     penalty: f64,
     /// Of `train_drop` and `held_drop`, what the height sensor gave ([`witness`]).
     sensor: Option<(f64, f64)>,
+    /// Of `train_drop` and `held_drop`, what the hard reference gave ([`witness`]).
+    reference: Option<(f64, f64)>,
 }
 
 /// What steps 2 to 4 of a diagnosis (locate, screen, refit each candidate) found from one
@@ -1002,6 +1013,22 @@ pub fn diagnose_with(
                 .unwrap_or(w.nominal),
         )
     };
+    // The same drive on a hard reference reads the instrument's chain without the sample:
+    // each model's reading of it is scored there too (`witness`).
+    let reference = rec
+        .reference_deflection_v
+        .as_ref()
+        .zip(problem.simulate_reference(&nom.spec, &nom.theta))
+        .and_then(|(r, path)| ReferenceWitness::new(r, &path, &problem.train, &problem.held));
+    let reference_chi2 = |f: &Fitted| -> Option<(f64, f64)> {
+        let w = reference.as_ref()?;
+        Some(
+            problem
+                .simulate_reference(&f.spec, &f.theta)
+                .and_then(|p| w.chi2(&p))
+                .unwrap_or(w.nominal),
+        )
+    };
     let judge = |base: &Fitted, cand: &Fitted| -> Judgement {
         let k = (model::n_params(&problem, &cand.spec) as f64
             - model::n_params(&problem, &base.spec) as f64)
@@ -1013,8 +1040,20 @@ pub fn diagnose_with(
             .flatten()
             .map(|(b, c)| (b.0 - c.0, b.1 - c.1));
         let (s_train, s_held) = sensor.unwrap_or((0.0, 0.0));
-        let train_drop = base.eval.chi2_train - cand.eval.chi2_train + s_train;
-        let held_drop = base.eval.chi2_held - cand.eval.chi2_held + s_held;
+        // The reference judges the models whose chain differs from the nominal's: an effect
+        // of the chain, or a refit of the nominal actuator's dynamics (a drag's refit moves
+        // the lag the nominal bent to mimic the drag's lead back where the reference has it).
+        let chain = |f: &Fitted| {
+            model::CHAIN_EFFECTS.iter().any(|e| f.spec.has(*e))
+                || (!f.spec.effects.is_empty() && f.spec.frees_actuator_dynamics())
+        };
+        let reference = (chain(base) || chain(cand))
+            .then(|| reference_chi2(base).zip(reference_chi2(cand)))
+            .flatten()
+            .map(|(b, c)| (b.0 - c.0, b.1 - c.1));
+        let (r_train, r_held) = reference.unwrap_or((0.0, 0.0));
+        let train_drop = base.eval.chi2_train - cand.eval.chi2_train + s_train + r_train;
+        let held_drop = base.eval.chi2_held - cand.eval.chi2_held + s_held + r_held;
         let n_ho = problem.held.len() as f64;
         let excess = (base.eval.chi2_held - n_ho).max(0.0);
         let penalty = k * n_tr.ln() + th.train_margin;
@@ -1026,6 +1065,7 @@ pub fn diagnose_with(
             held_drop,
             penalty,
             sensor,
+            reference,
         }
     };
     let mut reports: Vec<EffectReport> = vec![];
@@ -1051,6 +1091,7 @@ pub fn diagnose_with(
             params: params_of(&problem, f, *e),
             held_out_nrmse: Some(held_nrmse(&problem, f)),
             sensor_evidence: j.sensor.map(|s| s.1),
+            reference_evidence: j.reference.map(|s| s.1),
             description: e.describe(),
         });
     }
@@ -1070,6 +1111,7 @@ pub fn diagnose_with(
             params: vec![],
             held_out_nrmse: None,
             sensor_evidence: None,
+            reference_evidence: None,
             description: e.describe(),
         });
     }
@@ -1134,6 +1176,7 @@ pub fn diagnose_with(
                     r.given = Some(a.id());
                     r.held_out_nrmse = Some(held_nrmse(&problem, &fp));
                     r.sensor_evidence = j.sensor.map(|s| s.1);
+                    r.reference_evidence = j.reference.map(|s| s.1);
                 }
                 chosen_effects.push(b);
                 chosen = Some(fp);
@@ -1216,6 +1259,7 @@ pub fn diagnose_with(
         weighting: problem.weighting(),
         look_alikes,
         sensor_sigma_nm: witness.as_ref().map(|w| w.sigma_nm),
+        reference_sigma_v: reference.as_ref().map(|w| w.sigma_v),
     })
 }
 
@@ -2153,6 +2197,71 @@ mod tests {
         assert!(!creep.significant);
         if let Some(s) = creep.sensor_evidence {
             assert!(s < 0.0, "{creep:?}");
+        }
+    }
+
+    /// `twin` recorded over the corpus protocol at 5 kHz with its drive in volts and the same
+    /// drive's deflection on the twin's hard reference, its contact point the sample's (the
+    /// reference run's own noise: another seed).
+    fn with_reference(twin: &TwinConfig) -> Recording {
+        let fs = 5000.0;
+        let (drive_v, _) = protocol_drive(fs);
+        let mut rec = simulate(twin, &drive_v, fs, None);
+        let mut cfg = twin.clone();
+        cfg.seed ^= 0x7e7e;
+        cfg.reference.contact_point_nm = twin.sample.contact_point_nm;
+        let mut hard = crate::twin::Twin::new(&cfg, fs);
+        hard.select(crate::twin::SampleSlot::Reference);
+        hard.settle(drive_v[0]);
+        rec.reference_deflection_v =
+            Some(drive_v.iter().map(|&v| hard.step(v).deflection_v).collect());
+        rec
+    }
+
+    /// A scanner mode shows on the hard reference as on the sample: the reference's reading
+    /// adds to the resonance's evidence, and its scale is the reference's noise and the
+    /// nominal chain's misfit there.
+    #[test]
+    fn a_hard_reference_witnesses_a_scanner_mode() {
+        let mut twin = nominal_twin(31);
+        twin.actuator.modes = vec![crate::twin::actuator::ResonantMode::held(900.0, 6.0)];
+        let d = diagnose(&with_reference(&twin), &corpus_options()).unwrap();
+        let top = &d.effects[0];
+        assert!(
+            top.significant && top.id == "instrument_resonance",
+            "{top:?}"
+        );
+        let from_reference = top.reference_evidence.unwrap();
+        assert!(from_reference > 1000.0, "{top:?}");
+        let sigma = d.reference_sigma_v.unwrap();
+        let noise = twin.detector.white_noise_v;
+        assert!(sigma > noise, "reference σ {sigma} V, noise {noise} V");
+        let f = top.params.iter().find(|p| p.name == "freq_hz").unwrap();
+        assert!((f.value - 900.0).abs() < 10.0, "{f:?}");
+    }
+
+    /// A surface drift is of the sample, not the chain: the reference does not judge it, and
+    /// no effect of the chain is named beside it.
+    #[test]
+    fn a_hard_reference_leaves_a_drift_of_the_sample_alone() {
+        let mut twin = nominal_twin(32);
+        twin.sample.surface_drift_nm_per_s = Some(2.0);
+        let d = diagnose(&with_reference(&twin), &corpus_options()).unwrap();
+        let top = &d.effects[0];
+        assert!(top.significant && top.id == "thermal_drift", "{top:?}");
+        assert_eq!(top.reference_evidence, None);
+        assert!(d.reference_sigma_v.is_some());
+        for e in d.effects.iter().filter(|e| e.significant) {
+            assert!(
+                ![
+                    "channel_delay",
+                    "instrument_resonance",
+                    "piezo_creep",
+                    "piezo_hysteresis"
+                ]
+                .contains(&e.id),
+                "{e:?}"
+            );
         }
     }
 

@@ -269,6 +269,18 @@ const BLUNTED_TIP_NAMES: &[(&str, &str)] = &[("transition_depth_nm", "nm")];
 /// The parameter of a power-law tip (fitted as its logarithm).
 const POWER_LAW_TIP_NAMES: &[(&str, &str)] = &[("profile_exponent", "1")];
 
+/// The effects of the instrument's chain from drive to detector, which a hard reference
+/// sample driven alike reads as well (`witness::ReferenceWitness`): everything else in the
+/// catalog is of the sample, or of terms a reference run does not share (its own drift and
+/// mains phase). (A drag acts on the lever, but on a rigid reference only off the surface,
+/// and it is solved in closed form, outside the twin's reading of the reference.)
+pub const CHAIN_EFFECTS: [Effect; 4] = [
+    Effect::ChannelDelay,
+    Effect::InstrumentResonance,
+    Effect::PiezoCreep,
+    Effect::PiezoHysteresis,
+];
+
 /// The smallest profile exponent a fitted tip may have: a cone's. An AFM tip is convex (a
 /// cone, a pyramid, a sphere, any of them worn or rounded); below 1 its flank would be
 /// concave, a cusp that no tip is made or worn into. The twin simulates such profiles
@@ -1069,19 +1081,8 @@ impl Problem {
         }
         self.simulations
             .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-        // The nominal actuator's dynamics act on the drive as a band-limited signal
-        // (`DriveSpectrum`); the twin's own actuator has only the candidates' modes.
-        let lagged;
-        let drive = match self.actuator_mode(spec, th) {
-            Some(mode) => {
-                let spectrum = self
-                    .drive_spectrum
-                    .get_or_init(|| DriveSpectrum::new(&self.drive));
-                lagged = spectrum.through(&mode, self.fs_hz);
-                &lagged
-            }
-            None => &self.drive,
-        };
+        let drive = self.twin_drive(spec, th);
+        let drive = &drive[..];
         let mut twin = Twin::new(&cfg, self.fs_hz);
         twin.settle(drive[0]);
         let n = drive.len();
@@ -1102,6 +1103,64 @@ impl Problem {
             sim.lever_share.push(s.truth.lever_share);
         }
         Some(sim)
+    }
+
+    /// The drive as the twin of θ receives it. The nominal actuator's dynamics act on the
+    /// drive as a band-limited signal (`DriveSpectrum`); the twin's own actuator has only the
+    /// candidates' modes.
+    fn twin_drive(&self, spec: &ModelSpec, th: &[f64]) -> std::borrow::Cow<'_, [f64]> {
+        match self.actuator_mode(spec, th) {
+            Some(mode) => {
+                let spectrum = self
+                    .drive_spectrum
+                    .get_or_init(|| DriveSpectrum::new(&self.drive));
+                std::borrow::Cow::Owned(spectrum.through(&mode, self.fs_hz))
+            }
+            None => std::borrow::Cow::Borrowed(&self.drive),
+        }
+    }
+
+    /// What the model of θ says the same drive reads on a rigid reference sample whose
+    /// contact point is the sample's: the deflection (V, no noise, no offset) and whether
+    /// the tip touches the reference, per sample. The instrument's chain is the model's —
+    /// the actuator with its gain, dynamics, modes, creep and hysteresis, the detector with
+    /// its delay — and nothing of the sample is: no material, tip, film, adhesion or drift
+    /// (a reference run is a separate run on a hard sample). The terms solved in closed
+    /// form (drag, detector nonlinearity, mains) are left out too. `None` where the model
+    /// cannot be simulated.
+    pub fn simulate_reference(
+        &self,
+        spec: &ModelSpec,
+        th: &[f64],
+    ) -> Option<(Vec<f64>, Vec<bool>)> {
+        if th.iter().any(|v| !v.is_finite()) {
+            return None;
+        }
+        let mut cfg = self.twin_config(spec, th);
+        if !cfg.validate("").is_empty() {
+            return None;
+        }
+        cfg.reference = ReferenceConfig {
+            contact_point_nm: cfg.sample.contact_point_nm,
+            adhesion_nn: None,
+        };
+        self.simulations
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let drive = self.twin_drive(spec, th);
+        let mut twin = Twin::new(&cfg, self.fs_hz);
+        twin.select(crate::twin::SampleSlot::Reference);
+        twin.settle(drive[0]);
+        let mut deflection = Vec::with_capacity(drive.len());
+        let mut touching = Vec::with_capacity(drive.len());
+        for &d in drive.iter() {
+            let s = twin.step(d);
+            if !s.deflection_v.is_finite() {
+                return None;
+            }
+            deflection.push(s.deflection_v);
+            touching.push(s.truth.in_contact);
+        }
+        Some((deflection, touching))
     }
 
     /// The regressors that do not depend on the model — the offset, time, time squared, then

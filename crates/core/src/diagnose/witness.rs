@@ -1,4 +1,6 @@
-//! The stage's position sensor as a second witness of the piezo's path.
+//! Channels beside the deflection as witnesses of a model's instrument chain.
+//!
+//! [`HeightWitness`]: the stage's position sensor as a second witness of the piezo's path.
 //!
 //! Where a recording drives the piezo in volts and also has `measured_height_nm`, the
 //! sensor reads the piezo's own extension: its creep and its hysteresis show there directly,
@@ -20,19 +22,131 @@
 //! dynamics. Its noise is the residual of the nominal path, so structure the witness does
 //! not model only widens the scale and weakens its evidence.
 
+//!
+//! [`ReferenceWitness`]: a `reference_deflection_v` column, the same drive on a hard reference
+//! sample. It reads the whole chain from drive to detector — the actuator's gain, dynamics,
+//! modes, creep and hysteresis, the detector's delay — and nothing of the sample under test:
+//! an actuator mode or a delay fitted to the deflection shows there as well, a retardation of
+//! the material, a drag in contact, an adhesion or a change of tip does not. Each model's
+//! reference deflection ([`super::model::Problem::simulate_reference`]) is scored against the
+//! column with a free scale (the gain), a free in-contact step (a contact point a little off:
+//! a soft sample's first touch is hard to place), and a slow parabola of the detector's zero.
+//! As for the sensor, the noise is the nominal model's residual there.
+
 use nalgebra::{DMatrix, DVector};
 
-/// Columns of the regression besides the path: zero, t, t², v̇, v̈.
+/// Columns of the height witness's regression besides the path: zero, t, t², v̇, v̈.
 const NUISANCE: usize = 5;
+
+/// A recorded channel, regressed on a model's path columns beside fixed nuisance columns,
+/// fitted on the train samples.
+#[derive(Debug, Clone)]
+struct Regression {
+    target: Vec<f64>,
+    /// n × (nuisance count), each column scaled to unit RMS.
+    nuisance: DMatrix<f64>,
+    train: Vec<usize>,
+    held: Vec<usize>,
+}
+
+impl Regression {
+    /// `None` for indices outside the record or too few train samples.
+    fn new(target: &[f64], cols: &[Vec<f64>], train: &[usize], held: &[usize]) -> Option<Self> {
+        let n = target.len();
+        if train.len() < 4 * (cols.len() + 2) || train.iter().chain(held).any(|&i| i >= n) {
+            return None;
+        }
+        let mut nuisance = DMatrix::zeros(n, cols.len());
+        for (j, c) in cols.iter().enumerate() {
+            for (i, x) in unit_rms(c).into_iter().enumerate() {
+                nuisance[(i, j)] = x;
+            }
+        }
+        Some(Self {
+            target: target.to_vec(),
+            nuisance,
+            train: train.to_vec(),
+            held: held.to_vec(),
+        })
+    }
+
+    /// Parameters of a fit with `paths` path columns.
+    fn parameters(&self, paths: usize) -> usize {
+        self.nuisance.ncols() + paths
+    }
+
+    /// Residual sums of squares (train, held-out) of the target against `paths` (each with
+    /// a free coefficient) beside the nuisance columns. `None` for a path of the wrong length
+    /// or one that is not finite.
+    fn residual_sums(&self, paths: &[&[f64]]) -> Option<(f64, f64)> {
+        let n = self.target.len();
+        if paths
+            .iter()
+            .any(|p| p.len() != n || p.iter().any(|v| !v.is_finite()))
+        {
+            return None;
+        }
+        let scales: Vec<f64> = paths.iter().map(|p| unit_rms_scale(p)).collect();
+        let q = self.nuisance.ncols();
+        let p = paths.len() + q;
+        let row = |i: usize, r: &mut [f64]| {
+            for (k, path) in paths.iter().enumerate() {
+                r[k] = path[i] * scales[k];
+            }
+            for j in 0..q {
+                r[paths.len() + j] = self.nuisance[(i, j)];
+            }
+        };
+        // Normal equations on unit-RMS columns, solved by SVD so that a column the record
+        // does not excite (v̈ of a drive of ramps) drops out instead of blowing up.
+        let mut ata = DMatrix::<f64>::zeros(p, p);
+        let mut atb = DVector::<f64>::zeros(p);
+        let mut r = vec![0.0; p];
+        for &i in &self.train {
+            row(i, &mut r);
+            for a in 0..p {
+                atb[a] += r[a] * self.target[i];
+                for b in 0..p {
+                    ata[(a, b)] += r[a] * r[b];
+                }
+            }
+        }
+        let coef = ata.svd(true, true).solve(&atb, 1e-10).ok()?;
+        let sum = |idx: &[usize]| -> f64 {
+            let mut r = vec![0.0; p];
+            idx.iter()
+                .map(|&i| {
+                    row(i, &mut r);
+                    let fit: f64 = (0..p).map(|a| r[a] * coef[a]).sum();
+                    (self.target[i] - fit).powi(2)
+                })
+                .sum()
+        };
+        let out = (sum(&self.train), sum(&self.held));
+        (out.0.is_finite() && out.1.is_finite()).then_some(out)
+    }
+
+    /// The noise scale of a fit with `paths` path columns: its train RMS residual; `None`
+    /// where it is not finite, or is nothing against the target (a target that is a path
+    /// to rounding has no noise to scale by, and witnesses nothing).
+    fn noise_scale(&self, paths: &[&[f64]]) -> Option<f64> {
+        let (rss_train, _) = self.residual_sums(paths)?;
+        let dof = self
+            .train
+            .len()
+            .saturating_sub(self.parameters(paths.len()))
+            .max(1) as f64;
+        let sigma = (rss_train / dof).sqrt();
+        let n = self.target.len() as f64;
+        let rms = (self.target.iter().map(|x| x * x).sum::<f64>() / n).sqrt();
+        (sigma.is_finite() && sigma > 1e-9 * rms).then_some(sigma)
+    }
+}
 
 /// The sensor, its nuisance columns and its noise scale.
 #[derive(Debug, Clone)]
 pub struct HeightWitness {
-    sensor_nm: Vec<f64>,
-    /// n × [`NUISANCE`], each column scaled to unit RMS.
-    nuisance: DMatrix<f64>,
-    train: Vec<usize>,
-    held: Vec<usize>,
+    fit: Regression,
     /// The sensor's noise, nm: the RMS residual of the nominal (linear) path on the train
     /// samples.
     pub sigma_nm: f64,
@@ -51,50 +165,26 @@ impl HeightWitness {
         held: &[usize],
     ) -> Option<Self> {
         let n = drive_v.len();
-        let finite = |x: &[f64]| x.iter().all(|v| v.is_finite());
         if n < 8 * NUISANCE || sensor_nm.len() != n || !finite(drive_v) || !finite(sensor_nm) {
-            return None;
-        }
-        if train.len() < 4 * (NUISANCE + 1) || train.iter().chain(held).any(|&i| i >= n) {
             return None;
         }
         let d1 = central_difference(drive_v, fs_hz);
         let d2 = central_difference(&d1, fs_hz);
-        let mid = 0.5 * (n - 1) as f64;
-        let t: Vec<f64> = (0..n).map(|i| (i as f64 - mid) / mid.max(1.0)).collect();
-        let cols: [Vec<f64>; NUISANCE] = [
+        let t = centred_time(n);
+        let cols = [
             vec![1.0; n],
             t.clone(),
             t.iter().map(|x| x * x - 1.0 / 3.0).collect(),
             d1,
             d2,
         ];
-        let mut nuisance = DMatrix::zeros(n, NUISANCE);
-        for (j, c) in cols.iter().enumerate() {
-            let rms = (c.iter().map(|x| x * x).sum::<f64>() / n as f64).sqrt();
-            let scale = if rms > 0.0 { 1.0 / rms } else { 0.0 };
-            for (i, x) in c.iter().enumerate() {
-                nuisance[(i, j)] = x * scale;
-            }
-        }
+        let fit = Regression::new(sensor_nm, &cols, train, held)?;
+        let sigma_nm = fit.noise_scale(&[drive_v])?;
         let mut w = Self {
-            sensor_nm: sensor_nm.to_vec(),
-            nuisance,
-            train: train.to_vec(),
-            held: held.to_vec(),
-            sigma_nm: 1.0,
+            fit,
+            sigma_nm,
             nominal: (0.0, 0.0),
         };
-        let (rss_train, _) = w.residual_sums(drive_v)?;
-        let dof = (train.len() - (NUISANCE + 1)) as f64;
-        let sigma = (rss_train / dof).sqrt();
-        // A sensor that is the drive to rounding (an export that copied the command into
-        // the sensor's column) has no noise to scale by, and witnesses nothing.
-        let rms = (sensor_nm.iter().map(|x| x * x).sum::<f64>() / n as f64).sqrt();
-        if !(sigma.is_finite() && sigma > 1e-9 * rms) {
-            return None;
-        }
-        w.sigma_nm = sigma;
         w.nominal = w.chi2(drive_v)?;
         Some(w)
     }
@@ -103,54 +193,100 @@ impl HeightWitness {
     /// nuisance columns fitted on the train samples. `None` for a path of the wrong length
     /// or one that is not finite.
     pub fn chi2(&self, path_nm: &[f64]) -> Option<(f64, f64)> {
-        let (train, held) = self.residual_sums(path_nm)?;
+        let (train, held) = self.fit.residual_sums(&[path_nm])?;
         let s2 = self.sigma_nm * self.sigma_nm;
         Some((train / s2, held / s2))
     }
+}
 
-    /// Residual sums of squares (train, held-out), nm².
-    fn residual_sums(&self, path_nm: &[f64]) -> Option<(f64, f64)> {
-        let n = self.sensor_nm.len();
-        if path_nm.len() != n || path_nm.iter().any(|v| !v.is_finite()) {
+/// A model's reading of the hard reference: deflection (V) and whether the tip touches the
+/// reference, per sample ([`super::model::Problem::simulate_reference`]).
+pub type ReferencePath = (Vec<f64>, Vec<bool>);
+
+/// The reference column, its nuisance columns and its noise scale.
+#[derive(Debug, Clone)]
+pub struct ReferenceWitness {
+    fit: Regression,
+    /// The reference channel's noise, V: the RMS residual of the nominal model's reference
+    /// path on the train samples.
+    pub sigma_v: f64,
+    /// χ² (train, held-out) of the nominal model's path.
+    pub nominal: (f64, f64),
+}
+
+impl ReferenceWitness {
+    /// The witness of `reference_v` for the nominal model's reference path `nominal`;
+    /// `None` when the column is too short, not finite, never touched, or is the nominal
+    /// path to rounding.
+    pub fn new(
+        reference_v: &[f64],
+        nominal: &ReferencePath,
+        train: &[usize],
+        held: &[usize],
+    ) -> Option<Self> {
+        let n = reference_v.len();
+        if n < 64 || !finite(reference_v) || !nominal.1.iter().any(|&c| c) {
             return None;
         }
-        let rms = (path_nm.iter().map(|x| x * x).sum::<f64>() / n as f64).sqrt();
-        let scale = if rms > 0.0 { 1.0 / rms } else { 0.0 };
-        let p = NUISANCE + 1;
-        let row = |i: usize| {
-            let mut r = [0.0; NUISANCE + 1];
-            r[0] = path_nm[i] * scale;
-            for j in 0..NUISANCE {
-                r[j + 1] = self.nuisance[(i, j)];
-            }
-            r
+        let t = centred_time(n);
+        let cols = [
+            vec![1.0; n],
+            t.clone(),
+            t.iter().map(|x| x * x - 1.0 / 3.0).collect(),
+        ];
+        let fit = Regression::new(reference_v, &cols, train, held)?;
+        let touching = indicator(&nominal.1);
+        let sigma_v = fit.noise_scale(&[&nominal.0, &touching])?;
+        let mut w = Self {
+            fit,
+            sigma_v,
+            nominal: (0.0, 0.0),
         };
-        // Normal equations on unit-RMS columns, solved by SVD so that a column the record
-        // does not excite (v̈ of a drive of ramps) drops out instead of blowing up.
-        let mut ata = DMatrix::<f64>::zeros(p, p);
-        let mut atb = DVector::<f64>::zeros(p);
-        for &i in &self.train {
-            let r = row(i);
-            for a in 0..p {
-                atb[a] += r[a] * self.sensor_nm[i];
-                for b in 0..p {
-                    ata[(a, b)] += r[a] * r[b];
-                }
-            }
-        }
-        let coef = ata.svd(true, true).solve(&atb, 1e-10).ok()?;
-        let sum = |idx: &[usize]| -> f64 {
-            idx.iter()
-                .map(|&i| {
-                    let r = row(i);
-                    let fit: f64 = (0..p).map(|a| r[a] * coef[a]).sum();
-                    (self.sensor_nm[i] - fit).powi(2)
-                })
-                .sum()
-        };
-        let out = (sum(&self.train), sum(&self.held));
-        (out.0.is_finite() && out.1.is_finite()).then_some(out)
+        w.nominal = w.chi2(nominal)?;
+        Some(w)
     }
+
+    /// χ² (train, held-out) of the reference column against `path` (free scale, free
+    /// in-contact step) beside the nuisance columns. `None` for a path of the wrong length,
+    /// one that is not finite, or one that never touches.
+    pub fn chi2(&self, path: &ReferencePath) -> Option<(f64, f64)> {
+        if !path.1.iter().any(|&c| c) {
+            return None;
+        }
+        let touching = indicator(&path.1);
+        let (train, held) = self.fit.residual_sums(&[&path.0, &touching])?;
+        let s2 = self.sigma_v * self.sigma_v;
+        Some((train / s2, held / s2))
+    }
+}
+
+fn finite(x: &[f64]) -> bool {
+    x.iter().all(|v| v.is_finite())
+}
+
+/// Time across the record, −1 to 1.
+fn centred_time(n: usize) -> Vec<f64> {
+    let mid = 0.5 * (n.max(1) - 1) as f64;
+    (0..n).map(|i| (i as f64 - mid) / mid.max(1.0)).collect()
+}
+
+fn indicator(flags: &[bool]) -> Vec<f64> {
+    flags.iter().map(|&c| if c { 1.0 } else { 0.0 }).collect()
+}
+
+/// 1 / RMS of `x`, or 0 for a column of zeros.
+fn unit_rms_scale(x: &[f64]) -> f64 {
+    let rms = (x.iter().map(|v| v * v).sum::<f64>() / x.len().max(1) as f64).sqrt();
+    if rms > 0.0 {
+        1.0 / rms
+    } else {
+        0.0
+    }
+}
+
+fn unit_rms(x: &[f64]) -> Vec<f64> {
+    let s = unit_rms_scale(x);
+    x.iter().map(|v| v * s).collect()
 }
 
 /// Central difference per second (one-sided at the ends).
@@ -254,6 +390,74 @@ mod tests {
             .collect();
         let (_, ho) = w.chi2(&path).unwrap();
         assert!(ho - w.nominal.1 > 100.0, "{} → {ho}", w.nominal.1);
+    }
+
+    /// A hard reference read through a first-order stage (lag 40 µs at 8 kHz) with 2 mV of
+    /// noise: the path with the lag leaves the noise alone, a nominal path without it leaves
+    /// the lag's misfit (which sets the witness's scale); a contact point 0.5 nm off costs
+    /// nothing (the in-contact step is free), and a path that never touches is no reading.
+    #[test]
+    fn the_reference_reads_the_chain_and_forgives_the_contact_point() {
+        let fs: f64 = 8000.0;
+        let n = 16_000;
+        // Base position, nm: rest, approach, a 300 Hz and a 900 Hz line in contact, retract.
+        let base: Vec<f64> = (0..n)
+            .map(|i| {
+                let t = i as f64 / fs;
+                let ramp = 150.0 * (t / 0.5).min(1.0) * (1.0 - ((t - 1.5) / 0.5).clamp(0.0, 1.0));
+                let tone = if (0.5..1.5).contains(&t) {
+                    let w = 2.0 * std::f64::consts::PI;
+                    10.0 * (w * 300.0 * t).sin() + 5.0 * (w * 900.0 * t).sin()
+                } else {
+                    0.0
+                };
+                ramp + tone - 50.0
+            })
+            .collect();
+        let lagged = {
+            let a = (-1.0 / (fs * 40e-6)).exp();
+            let mut s = base[0];
+            base.iter()
+                .map(|&b| {
+                    s = a * s + (1.0 - a) * b;
+                    s
+                })
+                .collect::<Vec<f64>>()
+        };
+        let path = |z: &[f64], zc: f64| -> ReferencePath {
+            let d = z.iter().map(|&z| (z - zc).max(0.0) / 60.0).collect();
+            (d, z.iter().map(|&z| z > zc).collect())
+        };
+        let mut rng = rand::rngs::StdRng::seed_from_u64(9);
+        let recorded: Vec<f64> = path(&lagged, 0.0)
+            .0
+            .iter()
+            .map(|d| 0.3 + d + 2e-3 * rng.sample::<f64, _>(StandardNormal))
+            .collect();
+        let (train, held): (Vec<usize>, Vec<usize>) = (0..n).partition(|i| (i / 300) % 3 != 2);
+        let nominal = path(&base, 0.0);
+        let w = ReferenceWitness::new(&recorded, &nominal, &train, &held).unwrap();
+        assert!(w.sigma_v > 2.5e-3, "σ {} V", w.sigma_v);
+        let right = w.chi2(&path(&lagged, 0.0)).unwrap();
+        let floor = (2e-3 / w.sigma_v).powi(2);
+        let per = right.1 / held.len() as f64;
+        assert!((per - floor).abs() < 0.1 * floor, "{per} vs {floor}");
+        assert!(
+            w.nominal.1 - right.1 > 1000.0,
+            "{:?} → {right:?}",
+            w.nominal
+        );
+        let off = w.chi2(&path(&lagged, 0.5)).unwrap();
+        assert!(
+            (off.1 - right.1).abs() < 0.02 * right.1,
+            "{off:?} vs {right:?}"
+        );
+        let never = path(&lagged, 1e6);
+        assert!(w.chi2(&never).is_none());
+        assert!(ReferenceWitness::new(&recorded, &never, &train, &held).is_none());
+        let mut bad = recorded.clone();
+        bad[3] = f64::NAN;
+        assert!(ReferenceWitness::new(&bad, &nominal, &train, &held).is_none());
     }
 
     #[test]

@@ -95,6 +95,7 @@ pub fn diagnosis_json(file: &str, d: &Diagnosis, seconds: f64) -> Value {
             "refitted": e.refitted,
             "held_out_nrmse": e.held_out_nrmse,
             "sensor_evidence": e.sensor_evidence,
+            "reference_evidence": e.reference_evidence,
             "description": e.description,
             "params": e.params.iter().map(|p| (p.name.clone(), json!({
                 "value": p.value,
@@ -134,6 +135,7 @@ pub fn diagnosis_json(file: &str, d: &Diagnosis, seconds: f64) -> Value {
         })).collect::<Vec<_>>(),
         "base_position": d.base_position.id(),
         "sensor_sigma_nm": d.sensor_sigma_nm,
+        "reference_sigma_v": d.reference_sigma_v,
         "weighting": d.weighting.id(),
         "cost": {
             "simulations": d.simulations.total(),
@@ -265,6 +267,12 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
         if let (Some(s), Some(sigma)) = (e.sensor_evidence, d.sensor_sigma_nm) {
             println!(
                 "    of which the height sensor (σ {sigma:.3} nm) gave {s:.1}: the piezo's path this model fitted, read by the stage's own sensor"
+            );
+        }
+        if let (Some(r), Some(sigma)) = (e.reference_evidence, d.reference_sigma_v) {
+            println!(
+                "    of which the hard reference (σ {:.3} mV) gave {r:.1}: this model's chain from drive to detector, read by the same drive on the reference sample",
+                sigma * 1e3
             );
         }
         for p in &e.params {
