@@ -686,25 +686,38 @@ pub fn diagnose_with(
         max_step: 1.0,
     };
     // Every nominal fit is restarted from where it stopped while that gains (`restarted`).
-    // Then from there with the actuator's damping at either end of its range: below a
-    // quarter sample's lag the damping is held where it starts (`model::frees_parameter`),
-    // and at its start (Q 0.8) a stage with a first-order lag (Q → 0) or a lightly damped
-    // mode could only be fitted with the wrong lag, leaving a misfit at the fast lines that
-    // a resonance candidate then took up (an independent simulator's closed-loop stage, a
-    // first-order lag at 3–6 kHz sampled at 8 kHz: χ²/sample 1.29, and a 3 kHz
-    // `instrument_resonance` named on a drag record).
+    let refit = |problem: &Problem, f: &Fitted| {
+        fit_model(
+            problem,
+            &nominal,
+            std::slice::from_ref(&f.theta),
+            nominal_opts,
+            fan,
+        )
+    };
     let polished = |problem: &Problem, f: Fitted| -> Fitted {
-        let refit = |f: &Fitted| {
-            fit_model(
-                problem,
-                &nominal,
-                std::slice::from_ref(&f.theta),
-                nominal_opts,
-                fan,
-            )
-        };
-        let f = restarted(f, NOMINAL_RESTARTS, |f| f.eval.chi2_train, refit);
-        let damp = nominal.actuator_lag() + 1;
+        restarted(
+            f,
+            NOMINAL_RESTARTS,
+            |f| f.eval.chi2_train,
+            |f| refit(problem, f),
+        )
+    };
+    // The nominal fit chosen is then refitted from where it stopped with the actuator's
+    // damping at either end of its range: below a quarter sample's lag the damping is held
+    // where it starts (`model::frees_parameter`), and at its start (Q 0.8) a stage with a
+    // first-order lag (Q → 0) or a lightly damped mode could only be fitted with the wrong
+    // lag, leaving a misfit at the fast lines that a resonance candidate then took up (an
+    // independent simulator's closed-loop stage, a first-order lag at 3–6 kHz sampled at
+    // 8 kHz: χ²/sample 1.29, and a 3 kHz `instrument_resonance` named on a drag record).
+    // Once per chosen fit, not per start: it doubled the nominal fit's cost.
+    let with_damping_ends = |problem: &Problem, f: Fitted| -> Fitted {
+        let lag = nominal.actuator_lag();
+        let damp = lag + 1;
+        if model::frees_parameter(damp, lag, &f.theta, false) {
+            // The damping was free in that fit: it is where the fit put it.
+            return f;
+        }
         let ends: Vec<Vec<f64>> = [0.0, std::f64::consts::PI]
             .iter()
             .map(|q| {
@@ -717,9 +730,7 @@ pub fn diagnose_with(
         // pay its BIC price, ln N, and a refit that gains less leaves the nominal as it was.
         let price = (problem.train.len() as f64).ln();
         match fit_model(problem, &nominal, &ends, nominal_opts, fan) {
-            Some(e) if e.eval.chi2_train < f.eval.chi2_train - price => {
-                restarted(e, NOMINAL_RESTARTS, |f| f.eval.chi2_train, refit)
-            }
+            Some(e) if e.eval.chi2_train < f.eval.chi2_train - price => polished(problem, e),
             _ => f,
         }
     };
@@ -729,7 +740,7 @@ pub fn diagnose_with(
         let first = fit_model(problem, &nominal, &starts[..1], nominal_opts, fan)
             .map(|f| polished(problem, f));
         let at_floor = |f: &Fitted| f.eval.chi2_train < 1.2 * problem.train.len() as f64;
-        Ok(match first {
+        let chosen = match first {
             Some(f) if at_floor(&f) => f,
             first => {
                 // `fit_model` keeps the best of the starts: only that one is polished.
@@ -741,7 +752,8 @@ pub fn diagnose_with(
                     (a, None) => a.ok_or(DiagnoseError::NominalFailed)?,
                 }
             }
-        })
+        };
+        Ok(with_damping_ends(problem, chosen))
     };
     let mut nom = fit_nominal(&problem)?;
     // The floor's noise model weights the residual only while the misfit is of the floor's
@@ -938,7 +950,7 @@ pub fn diagnose_with(
             return None;
         }
         fit_model(problem, &nominal, &from, nominal_opts, fan)
-            .map(|f| polished(problem, f))
+            .map(|f| with_damping_ends(problem, polished(problem, f)))
             .filter(|f| f.eval.chi2_train < nom.eval.chi2_train)
     };
     let mut ex = examine(&nom, None);
