@@ -147,8 +147,8 @@ pub struct EffectReport {
     /// The part of `evidence` (and of `train_drop`, alike) that the hard reference's
     /// deflection gave: the drop of its held-out χ² along this model's reading of the
     /// reference ([`witness::ReferenceWitness`]). Only with a `reference_deflection_v`
-    /// column, and only for models with an effect of the instrument's chain (a delay, a
-    /// resonance, creep or hysteresis); negative where the reference refutes it.
+    /// column, and only where this model's chain differs from the one it is judged against
+    /// ([`model::ModelSpec::chain_differs`]); negative where the reference refutes it.
     pub reference_evidence: Option<f64>,
     pub description: &'static str,
 }
@@ -686,21 +686,20 @@ pub fn diagnose_with(
         max_step: 1.0,
     };
     // Every nominal fit is restarted from where it stopped while that gains (`restarted`).
-    let refit = |problem: &Problem, f: &Fitted| {
-        fit_model(
-            problem,
-            &nominal,
-            std::slice::from_ref(&f.theta),
-            nominal_opts,
-            fan,
-        )
-    };
     let polished = |problem: &Problem, f: Fitted| -> Fitted {
         restarted(
             f,
             NOMINAL_RESTARTS,
             |f| f.eval.chi2_train,
-            |f| refit(problem, f),
+            |f| {
+                fit_model(
+                    problem,
+                    &nominal,
+                    std::slice::from_ref(&f.theta),
+                    nominal_opts,
+                    fan,
+                )
+            },
         )
     };
     // The nominal fit chosen is then refitted from where it stopped with the actuator's
@@ -1052,14 +1051,7 @@ pub fn diagnose_with(
             .flatten()
             .map(|(b, c)| (b.0 - c.0, b.1 - c.1));
         let (s_train, s_held) = sensor.unwrap_or((0.0, 0.0));
-        // The reference judges the models whose chain differs from the nominal's: an effect
-        // of the chain, or a refit of the nominal actuator's dynamics (a drag's refit moves
-        // the lag the nominal bent to mimic the drag's lead back where the reference has it).
-        let chain = |f: &Fitted| {
-            model::CHAIN_EFFECTS.iter().any(|e| f.spec.has(*e))
-                || (!f.spec.effects.is_empty() && f.spec.frees_actuator_dynamics())
-        };
-        let reference = (chain(base) || chain(cand))
+        let reference = (base.spec.chain_differs() || cand.spec.chain_differs())
             .then(|| reference_chi2(base).zip(reference_chi2(cand)))
             .flatten()
             .map(|(b, c)| (b.0 - c.0, b.1 - c.1));
@@ -2263,17 +2255,9 @@ mod tests {
         assert!(top.significant && top.id == "thermal_drift", "{top:?}");
         assert_eq!(top.reference_evidence, None);
         assert!(d.reference_sigma_v.is_some());
+        let chain: Vec<&str> = super::model::CHAIN_EFFECTS.iter().map(|e| e.id()).collect();
         for e in d.effects.iter().filter(|e| e.significant) {
-            assert!(
-                ![
-                    "channel_delay",
-                    "instrument_resonance",
-                    "piezo_creep",
-                    "piezo_hysteresis"
-                ]
-                .contains(&e.id),
-                "{e:?}"
-            );
+            assert!(!chain.contains(&e.id), "{e:?}");
         }
     }
 

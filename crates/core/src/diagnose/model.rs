@@ -575,6 +575,17 @@ impl ModelSpec {
         self.effects.is_empty() || self.effects.iter().any(|e| TRADES_WITH_LAG.contains(e))
     }
 
+    /// Whether this model's instrument chain differs from the nominal twin's, so that a
+    /// hard reference driven alike reads the difference (`witness::ReferenceWitness`): it
+    /// has an effect of the chain ([`CHAIN_EFFECTS`]), or refits the nominal actuator's
+    /// dynamics ([`TRADES_WITH_LAG`]: a drag's refit moves the lag the nominal bent to mimic
+    /// the drag's lead back where the reference has it).
+    pub fn chain_differs(&self) -> bool {
+        self.effects
+            .iter()
+            .any(|e| CHAIN_EFFECTS.contains(e) || TRADES_WITH_LAG.contains(e))
+    }
+
     /// The nominal twin, its material of `terms` Prony terms.
     pub fn nominal(terms: usize) -> Self {
         Self {
@@ -1072,15 +1083,7 @@ impl Problem {
     /// Plays the recorded drive through the twin of θ. `None` when the parameters are not
     /// physical (the twin would give nonsense) or the simulation is not finite.
     pub fn simulate(&self, spec: &ModelSpec, th: &[f64]) -> Option<Simulation> {
-        if th.iter().any(|v| !v.is_finite()) {
-            return None;
-        }
-        let cfg = self.twin_config(spec, th);
-        if !cfg.validate("").is_empty() || !tip_is_convex(&cfg.tip) {
-            return None;
-        }
-        self.simulations
-            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let cfg = self.start_simulation(spec, th)?;
         let drive = self.twin_drive(spec, th);
         let drive = &drive[..];
         let mut twin = Twin::new(&cfg, self.fs_hz);
@@ -1103,6 +1106,21 @@ impl Problem {
             sim.lever_share.push(s.truth.lever_share);
         }
         Some(sim)
+    }
+
+    /// The twin of θ, counted as one simulation; `None` where θ is not finite or the twin
+    /// not physical (its configuration invalid, or a tip the diagnosis may not fit).
+    fn start_simulation(&self, spec: &ModelSpec, th: &[f64]) -> Option<TwinConfig> {
+        if th.iter().any(|v| !v.is_finite()) {
+            return None;
+        }
+        let cfg = self.twin_config(spec, th);
+        if !cfg.validate("").is_empty() || !tip_is_convex(&cfg.tip) {
+            return None;
+        }
+        self.simulations
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        Some(cfg)
     }
 
     /// The drive as the twin of θ receives it. The nominal actuator's dynamics act on the
@@ -1133,19 +1151,11 @@ impl Problem {
         spec: &ModelSpec,
         th: &[f64],
     ) -> Option<(Vec<f64>, Vec<bool>)> {
-        if th.iter().any(|v| !v.is_finite()) {
-            return None;
-        }
-        let mut cfg = self.twin_config(spec, th);
-        if !cfg.validate("").is_empty() {
-            return None;
-        }
+        let mut cfg = self.start_simulation(spec, th)?;
         cfg.reference = ReferenceConfig {
             contact_point_nm: cfg.sample.contact_point_nm,
             adhesion_nn: None,
         };
-        self.simulations
-            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         let drive = self.twin_drive(spec, th);
         let mut twin = Twin::new(&cfg, self.fs_hz);
         twin.select(crate::twin::SampleSlot::Reference);

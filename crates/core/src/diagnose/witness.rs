@@ -126,6 +126,13 @@ impl Regression {
         (out.0.is_finite() && out.1.is_finite()).then_some(out)
     }
 
+    /// χ² (train, held-out) of the fit with `paths`, in units of the noise scale `sigma`.
+    fn chi2(&self, paths: &[&[f64]], sigma: f64) -> Option<(f64, f64)> {
+        let (train, held) = self.residual_sums(paths)?;
+        let s2 = sigma * sigma;
+        Some((train / s2, held / s2))
+    }
+
     /// The noise scale of a fit with `paths` path columns: its train RMS residual; `None`
     /// where it is not finite, or is nothing against the target (a target that is a path
     /// to rounding has no noise to scale by, and witnesses nothing).
@@ -170,32 +177,23 @@ impl HeightWitness {
         }
         let d1 = central_difference(drive_v, fs_hz);
         let d2 = central_difference(&d1, fs_hz);
-        let t = centred_time(n);
-        let cols = [
-            vec![1.0; n],
-            t.clone(),
-            t.iter().map(|x| x * x - 1.0 / 3.0).collect(),
-            d1,
-            d2,
-        ];
+        let mut cols = slow_zero(n).to_vec();
+        cols.extend([d1, d2]);
         let fit = Regression::new(sensor_nm, &cols, train, held)?;
         let sigma_nm = fit.noise_scale(&[drive_v])?;
-        let mut w = Self {
+        let nominal = fit.chi2(&[drive_v], sigma_nm)?;
+        Some(Self {
             fit,
             sigma_nm,
-            nominal: (0.0, 0.0),
-        };
-        w.nominal = w.chi2(drive_v)?;
-        Some(w)
+            nominal,
+        })
     }
 
     /// χ² (train, held-out) of the sensor against `path_nm` with a free scale, beside the
     /// nuisance columns fitted on the train samples. `None` for a path of the wrong length
     /// or one that is not finite.
     pub fn chi2(&self, path_nm: &[f64]) -> Option<(f64, f64)> {
-        let (train, held) = self.fit.residual_sums(&[path_nm])?;
-        let s2 = self.sigma_nm * self.sigma_nm;
-        Some((train / s2, held / s2))
+        self.fit.chi2(&[path_nm], self.sigma_nm)
     }
 }
 
@@ -228,22 +226,15 @@ impl ReferenceWitness {
         if n < 64 || !finite(reference_v) || !nominal.1.iter().any(|&c| c) {
             return None;
         }
-        let t = centred_time(n);
-        let cols = [
-            vec![1.0; n],
-            t.clone(),
-            t.iter().map(|x| x * x - 1.0 / 3.0).collect(),
-        ];
-        let fit = Regression::new(reference_v, &cols, train, held)?;
+        let fit = Regression::new(reference_v, &slow_zero(n), train, held)?;
         let touching = indicator(&nominal.1);
         let sigma_v = fit.noise_scale(&[&nominal.0, &touching])?;
-        let mut w = Self {
+        let nominal = fit.chi2(&[&nominal.0, &touching], sigma_v)?;
+        Some(Self {
             fit,
             sigma_v,
-            nominal: (0.0, 0.0),
-        };
-        w.nominal = w.chi2(nominal)?;
-        Some(w)
+            nominal,
+        })
     }
 
     /// χ² (train, held-out) of the reference column against `path` (free scale, free
@@ -253,10 +244,7 @@ impl ReferenceWitness {
         if !path.1.iter().any(|&c| c) {
             return None;
         }
-        let touching = indicator(&path.1);
-        let (train, held) = self.fit.residual_sums(&[&path.0, &touching])?;
-        let s2 = self.sigma_v * self.sigma_v;
-        Some((train / s2, held / s2))
+        self.fit.chi2(&[&path.0, &indicator(&path.1)], self.sigma_v)
     }
 }
 
@@ -264,10 +252,13 @@ fn finite(x: &[f64]) -> bool {
     x.iter().all(|v| v.is_finite())
 }
 
-/// Time across the record, −1 to 1.
-fn centred_time(n: usize) -> Vec<f64> {
+/// The nuisance columns of a channel's slowly wandering zero: 1, t and t² (less its mean),
+/// with t from −1 to 1 across the record.
+fn slow_zero(n: usize) -> [Vec<f64>; 3] {
     let mid = 0.5 * (n.max(1) - 1) as f64;
-    (0..n).map(|i| (i as f64 - mid) / mid.max(1.0)).collect()
+    let t: Vec<f64> = (0..n).map(|i| (i as f64 - mid) / mid.max(1.0)).collect();
+    let t2 = t.iter().map(|x| x * x - 1.0 / 3.0).collect();
+    [vec![1.0; n], t, t2]
 }
 
 fn indicator(flags: &[bool]) -> Vec<f64> {
