@@ -853,7 +853,17 @@ pub fn diagnose_with(
         // 4. Full refits of the strongest, then pairs.
         let distorted = nom.eval.chi2_train / n_tr > 1.2;
         let mut singles: Vec<(Effect, Fitted)> = vec![];
-        let chosen = chosen_for_refit(&screened, &locations_before, opts.full_refits, penalty_of);
+        let mut chosen =
+            chosen_for_refit(&screened, &locations_before, opts.full_refits, penalty_of);
+        // A hard reference reads the instrument's chain over the wider range a hard sample
+        // deflects through: an effect of the chain near the floor on the sample may stand out
+        // there (a detector's cubic term). Each chain candidate's screened model is read on
+        // the reference too, and one whose screening and reading together beat its price is
+        // refitted: its judgement then weighs the reference in full, for and against. The
+        // screening itself, and what it reports, stays the sample's alone.
+        for e in reference_supported(&problem, rec, nom, &screened, fan, penalty_of) {
+            mark_for_refit(&screened, &mut chosen, e);
+        }
         let to_refit: Vec<usize> = match again {
             // The trading candidates, and those the screening against the better nominal fit
             // picks that were not refitted before: the first screening, against a nominal
@@ -1029,13 +1039,13 @@ pub fn diagnose_with(
     let reference = rec
         .reference_deflection_v
         .as_ref()
-        .zip(problem.simulate_reference(&nom.spec, &nom.theta))
+        .zip(problem.simulate_reference(&nom.spec, &nom.theta, &nom.eval.linear))
         .and_then(|(r, path)| ReferenceWitness::new(r, &path, &problem.train, &problem.held));
     let reference_chi2 = |f: &Fitted| -> Option<(f64, f64)> {
         let w = reference.as_ref()?;
         Some(
             problem
-                .simulate_reference(&f.spec, &f.theta)
+                .simulate_reference(&f.spec, &f.theta, &f.eval.linear)
                 .and_then(|p| w.chi2(&p))
                 .unwrap_or(w.nominal),
         )
@@ -1451,6 +1461,43 @@ fn chosen_for_refit(
         mark_for_refit(screened, &mut to_refit, e);
     }
     to_refit
+}
+
+/// The screened candidates of the instrument's chain ([`model::CHAIN_EFFECTS`]) that beat
+/// their price (`penalty_of`) only with the hard reference's reading of their screened model
+/// (its train χ² drop against the nominal model's reading, [`ReferenceWitness`]) added to
+/// their screening; none without a reference column. Two simulations per chain candidate.
+fn reference_supported(
+    problem: &Problem,
+    rec: &Recording,
+    nom: &Fitted,
+    screened: &[(Effect, f64, Vec<f64>)],
+    fan: &dyn Fan,
+    penalty_of: impl Fn(Effect) -> f64,
+) -> Vec<Effect> {
+    let Some(witness) = rec.reference_deflection_v.as_ref().and_then(|r| {
+        let path = problem.simulate_reference(&nom.spec, &nom.theta, &nom.eval.linear)?;
+        ReferenceWitness::new(r, &path, &problem.train, &problem.held)
+    }) else {
+        return vec![];
+    };
+    let below: Vec<&(Effect, f64, Vec<f64>)> = screened
+        .iter()
+        .filter(|(e, d, _)| model::CHAIN_EFFECTS.contains(e) && *d <= penalty_of(*e))
+        .collect();
+    let drops = fan::map(fan, below.len(), |k| {
+        let (e, _, th) = below[k];
+        let spec = nom.spec.with(&[*e]);
+        let eval = problem.evaluate(&spec, th)?;
+        let path = problem.simulate_reference(&spec, th, &eval.linear)?;
+        Some(witness.nominal.0 - witness.chi2(&path)?.0)
+    });
+    below
+        .into_iter()
+        .zip(drops)
+        .filter(|((e, d, _), drop)| drop.is_some_and(|r| d + r > penalty_of(*e)))
+        .map(|((e, _, _), _)| *e)
+        .collect()
 }
 
 /// Adds `e`'s index in `screened` to `to_refit`, once (nothing when `e` was not screened).
@@ -2243,6 +2290,51 @@ mod tests {
         let f = top.params.iter().find(|p| p.name == "freq_hz").unwrap();
         assert!((f.value - 900.0).abs() < 10.0, "{f:?}");
     }
+
+    /// The detector that reads the sample reads the hard reference too, over the wider range
+    /// a hard sample deflects through: a cubic term near the floor on the sample stands out
+    /// there: the candidate is refitted for it, and the reference's reading gives it most of
+    /// its evidence. Without the column, the same record leaves it below significance.
+    #[test]
+    fn a_hard_reference_witnesses_a_detector_nonlinearity() {
+        let mut twin = nominal_twin(33);
+        twin.detector.cubic_per_v2 = CUBIC_NEAR_FLOOR_PER_V2;
+        let with = with_reference(&twin);
+        let mut without = with.clone();
+        without.reference_deflection_v = None;
+        let opts = corpus_options();
+        let (dw, dn) = (
+            diagnose(&with, &opts).unwrap(),
+            diagnose(&without, &opts).unwrap(),
+        );
+        let nonlinearity = |d: &Diagnosis| {
+            d.effects
+                .iter()
+                .find(|e| e.id == "detector_nonlinearity")
+                .cloned()
+                .expect("the nonlinearity is a candidate")
+        };
+        let (w, n) = (nonlinearity(&dw), nonlinearity(&dn));
+        // Near the floor on the sample alone: not significant there.
+        assert!(!n.significant, "{n:?}");
+        assert_eq!(n.reference_evidence, None);
+        // Named first with the reference, which gives most of its evidence.
+        assert!(w.significant && dw.effects[0].id == w.id, "{w:?}");
+        let from_reference = w.reference_evidence.unwrap();
+        assert!(from_reference > 1000.0, "{w:?}");
+        assert!(
+            w.evidence > n.evidence + 1000.0,
+            "with {w:?}, without {n:?}"
+        );
+        let cubic = w.params.iter().find(|p| p.name == "cubic_per_v2").unwrap();
+        let truth = CUBIC_NEAR_FLOOR_PER_V2;
+        assert!(
+            (cubic.value / truth - 1.0).abs() < 0.25,
+            "{cubic:?} against {truth}"
+        );
+    }
+
+    const CUBIC_NEAR_FLOOR_PER_V2: f64 = -0.004;
 
     /// A surface drift is of the sample, not the chain: the reference does not judge it, and
     /// no effect of the chain is named beside it.

@@ -272,13 +272,15 @@ const POWER_LAW_TIP_NAMES: &[(&str, &str)] = &[("profile_exponent", "1")];
 /// The effects of the instrument's chain from drive to detector, which a hard reference
 /// sample driven alike reads as well (`witness::ReferenceWitness`): everything else in the
 /// catalog is of the sample, or of terms a reference run does not share (its own drift and
-/// mains phase). (A drag acts on the lever, but on a rigid reference only off the surface,
-/// and it is solved in closed form, outside the twin's reading of the reference.)
-pub const CHAIN_EFFECTS: [Effect; 4] = [
+/// mains phase). The detector's nonlinearity is read there over the wider range a hard
+/// sample deflects through. (A drag acts on the lever, but on a rigid reference only off the
+/// surface; it joins the reference's judgement through [`TRADES_WITH_LAG`].)
+pub const CHAIN_EFFECTS: [Effect; 5] = [
     Effect::ChannelDelay,
     Effect::InstrumentResonance,
     Effect::PiezoCreep,
     Effect::PiezoHysteresis,
+    Effect::DetectorNonlinearity,
 ];
 
 /// The smallest profile exponent a fitted tip may have: a cone's. An AFM tip is convex (a
@@ -1143,13 +1145,15 @@ impl Problem {
     /// the tip touches the reference, per sample. The instrument's chain is the model's —
     /// the actuator with its gain, dynamics, modes, creep and hysteresis, the detector with
     /// its delay — and nothing of the sample is: no material, tip, film, adhesion or drift
-    /// (a reference run is a separate run on a hard sample). The terms solved in closed
-    /// form (drag, detector nonlinearity, mains) are left out too. `None` where the model
-    /// cannot be simulated.
+    /// (a reference run is a separate run on a hard sample). Of the terms solved in closed
+    /// form, the detector's nonlinearity and the drag are added at the model's coefficients
+    /// `linear` (its [`Evaluation::linear`]); the mains is left out (a separate run picks it up
+    /// at another phase). `None` where the model cannot be simulated.
     pub fn simulate_reference(
         &self,
         spec: &ModelSpec,
         th: &[f64],
+        linear: &[f64],
     ) -> Option<(Vec<f64>, Vec<bool>)> {
         let mut cfg = self.start_simulation(spec, th)?;
         cfg.reference = ReferenceConfig {
@@ -1160,8 +1164,11 @@ impl Problem {
         let mut twin = Twin::new(&cfg, self.fs_hz);
         twin.select(crate::twin::SampleSlot::Reference);
         twin.settle(drive[0]);
-        let mut deflection = Vec::with_capacity(drive.len());
-        let mut touching = Vec::with_capacity(drive.len());
+        let n = drive.len();
+        let mut deflection = Vec::with_capacity(n);
+        let mut touching = Vec::with_capacity(n);
+        let mut base_nm = Vec::with_capacity(n);
+        let mut lever_share = Vec::with_capacity(n);
         for &d in drive.iter() {
             let s = twin.step(d);
             if !s.deflection_v.is_finite() {
@@ -1169,8 +1176,36 @@ impl Problem {
             }
             deflection.push(s.deflection_v);
             touching.push(s.truth.in_contact);
+            base_nm.push(s.truth.base_nm);
+            lever_share.push(s.truth.lever_share);
         }
-        Some((deflection, touching))
+        // The closed-form terms the reference run shares, at the model's own coefficients:
+        // the same detector reads it (over the wider range a hard sample deflects through),
+        // and the same drag pushes the lever wherever the tip is off the surface.
+        let coefficient = |e: Effect, k: usize| linear.get(idx_of(spec, e, self.mains_hz) + k);
+        let mut closed = vec![0.0; n];
+        if spec.has(Effect::DetectorNonlinearity) {
+            for (k, col) in nonlinearity_columns(spec.nonlinearity, &deflection)
+                .iter()
+                .enumerate()
+            {
+                let c = *coefficient(Effect::DetectorNonlinearity, k)?;
+                closed.iter_mut().zip(col).for_each(|(a, v)| *a += c * v);
+            }
+        }
+        if spec.has(Effect::HydrodynamicDrag) {
+            let c = *coefficient(Effect::HydrodynamicDrag, 0)?;
+            let col = self.drag_column(&base_nm, &lever_share);
+            closed.iter_mut().zip(&col).for_each(|(a, v)| *a += c * v);
+        }
+        deflection
+            .iter_mut()
+            .zip(&closed)
+            .for_each(|(d, a)| *d += a);
+        deflection
+            .iter()
+            .all(|v| v.is_finite())
+            .then_some((deflection, touching))
     }
 
     /// The regressors that do not depend on the model — the offset, time, time squared, then
@@ -1192,6 +1227,27 @@ impl Problem {
             }
             cols
         })
+    }
+
+    /// The drag's regressor: the twin's drag is a force c·ḃ on the lever, which shows as
+    /// c·ḃ·s/K nm of deflection (s: the lever's share of it, 1 when free), i.e. c·ḃ·s/(K·C) V;
+    /// exact to first order in c. The column is that per unit c, from the base path (nm) and
+    /// the lever's share per sample; the record is at rest before its first sample.
+    fn drag_column(&self, base_nm: &[f64], lever_share: &[f64]) -> Vec<f64> {
+        let kc = self.spring_constant_n_per_m * self.sensitivity_nm_per_v;
+        let b = base_nm;
+        (0..b.len())
+            .map(|i| {
+                let at = |j: Option<usize>| b[j.unwrap_or(0)];
+                let v = crate::twin::base_velocity(
+                    at(i.checked_sub(2)),
+                    at(i.checked_sub(1)),
+                    b[i],
+                    self.fs_hz,
+                );
+                v * lever_share[i] / kc
+            })
+            .collect()
     }
 
     /// Columns of the closed-form part, raw and whitened: the offset, then each linear
@@ -1224,33 +1280,11 @@ impl Problem {
                     }
                 }
                 Effect::HydrodynamicDrag => {
-                    // The twin's drag: a force c·ḃ on the lever, which shows as c·ḃ·s/K nm
-                    // of deflection (s: the lever's share of it, 1 when free), i.e.
-                    // c·ḃ·s/(K·C) V; exact to first order in c.
-                    let kc = self.spring_constant_n_per_m * self.sensitivity_nm_per_v;
-                    let b = &sim.base_nm;
-                    let n = b.len();
-                    // The twin's velocity, the record at rest before its first sample.
-                    let col: Vec<f64> = (0..n)
-                        .map(|i| {
-                            let at = |j: Option<usize>| b[j.unwrap_or(0)];
-                            let v = crate::twin::base_velocity(
-                                at(i.checked_sub(2)),
-                                at(i.checked_sub(1)),
-                                b[i],
-                                self.fs_hz,
-                            );
-                            v * sim.lever_share[i] / kc
-                        })
-                        .collect();
-                    cols.push(owned(col));
+                    cols.push(owned(self.drag_column(&sim.base_nm, &sim.lever_share)));
                 }
                 Effect::DetectorNonlinearity => {
-                    if spec.nonlinearity != NonlinearityForm::Cubic {
-                        cols.push(owned(sim.clean_v.iter().map(|v| v * v).collect()));
-                    }
-                    if spec.nonlinearity != NonlinearityForm::Quadratic {
-                        cols.push(owned(sim.clean_v.iter().map(|v| v * v * v).collect()));
+                    for col in nonlinearity_columns(spec.nonlinearity, &sim.clean_v) {
+                        cols.push(owned(col));
                     }
                 }
                 _ => {}
@@ -1528,6 +1562,19 @@ fn blunted(declared: TipConfig, depth_nm: f64) -> TipConfig {
             }
         },
     }
+}
+
+/// The detector nonlinearity's regressors of a clean deflection `v` (V): v², v³ or both, as
+/// `form` has them.
+fn nonlinearity_columns(form: NonlinearityForm, v: &[f64]) -> Vec<Vec<f64>> {
+    let mut cols = vec![];
+    if form != NonlinearityForm::Cubic {
+        cols.push(v.iter().map(|v| v * v).collect());
+    }
+    if form != NonlinearityForm::Quadratic {
+        cols.push(v.iter().map(|v| v * v * v).collect());
+    }
+    cols
 }
 
 fn idx_of(spec: &ModelSpec, effect: Effect, mains_hz: f64) -> usize {

@@ -25,7 +25,9 @@
 //!
 //! [`ReferenceWitness`]: a `reference_deflection_v` column, the same drive on a hard reference
 //! sample. It reads the whole chain from drive to detector — the actuator's gain, dynamics,
-//! modes, creep and hysteresis, the detector's delay — and nothing of the sample under test:
+//! modes, creep and hysteresis, the detector's delay and nonlinearity (over the wider range a
+//! hard sample deflects through), the drag off the surface — and nothing of the sample under
+//! test:
 //! an actuator mode or a delay fitted to the deflection shows there as well, a retardation of
 //! the material, a drag in contact, an adhesion or a change of tip does not. Each model's
 //! reference deflection ([`super::model::Problem::simulate_reference`]) is scored against the
