@@ -155,13 +155,17 @@ fn jpk_pull_off_is_located_and_named_adhesion() {
     // The neck holds the tip for micrometres: the retract shows the pull for about 0.55 s
     // at 10 µm/s.
     let adh = &d.effects[0];
-    let length = adh
+    let neck = adh
         .params
         .iter()
         .find(|p| p.name == "neck_length_nm")
-        .expect("a neck")
-        .value;
+        .expect("a neck");
+    let length = neck.value;
     assert!((2_000.0..10_000.0).contains(&length), "neck {length} nm");
+    // The neck's length moves its snap-off by whole samples, so the fit's Gauss–Newton
+    // matrix knows nothing of it: its interval comes from a χ² scan, not of zero width.
+    let [lo, hi] = neck.ci95;
+    assert!(lo < length && length < hi && hi - lo < length, "{neck:?}");
     assert!(
         d.after.held_out_nrmse < 0.8 * d.before.held_out_nrmse,
         "held-out NRMSE {} → {}",

@@ -59,8 +59,15 @@ pub fn scaled_rcond(m: &DMatrix<f64>) -> f64 {
 /// stays singular, the one that weighs most in the direction the matrix knows least — and
 /// the rest is inverted. Their variances are conditional on the set-aside parameters.
 pub fn identified_inverse_diagonal(m: &DMatrix<f64>) -> Vec<f64> {
+    let inv = identified_inverse(m);
+    (0..m.nrows()).map(|i| inv[(i, i)]).collect()
+}
+
+/// The inverse that [`identified_inverse_diagonal`] takes the diagonal of, whole: the rows
+/// and columns of the parameters set aside are NaN.
+pub fn identified_inverse(m: &DMatrix<f64>) -> DMatrix<f64> {
     let n = m.nrows();
-    let mut out = vec![f64::NAN; n];
+    let mut out = DMatrix::from_element(n, n, f64::NAN);
     let mut active: Vec<usize> = (0..n)
         .filter(|&i| m[(i, i)].is_finite() && m[(i, i)] > 0.0)
         .collect();
@@ -68,7 +75,9 @@ pub fn identified_inverse_diagonal(m: &DMatrix<f64>) -> Vec<f64> {
         let sub = DMatrix::from_fn(active.len(), active.len(), |a, b| m[(active[a], active[b])]);
         if let Some(inv) = spd_inverse(&sub) {
             for (a, &i) in active.iter().enumerate() {
-                out[i] = inv[(a, a)];
+                for (b, &j) in active.iter().enumerate() {
+                    out[(i, j)] = inv[(a, b)];
+                }
             }
             break;
         }

@@ -20,24 +20,30 @@ pub struct Fitted {
     /// Standard errors of θ (fitting coordinates), from `(JᵀJ)⁻¹` scaled by the reduced χ²;
     /// NaN where the data do not determine a parameter (see [`scan_step_parameters`]).
     pub sd: Vec<f64>,
-    /// Jacobian of the train residuals at θ (rows: train samples).
+    /// Jacobian of the train residuals at θ (rows: train samples; columns: the parameters
+    /// `free`, in order).
     pub jacobian: DMatrix<f64>,
+    /// The parameters the fit moved (indices into θ); the others were held.
+    pub free: Vec<usize>,
 }
 
 /// Finite-difference step in θ: θ is in log units except the contact point (in 10 nm), so
 /// 1e-4 is 0.01 % or 1 pm.
 pub(crate) const FD_STEP: f64 = 1e-4;
 
-/// Jacobian of the train residuals over the parameters `which`, by forward differences. The
-/// columns are independent simulations: `fan` may run them side by side.
+/// Jacobian of the train residuals over the parameters `which`, by forward differences from
+/// `base` (the model at `th`), and that of the closed-form coefficients (rows: coefficients),
+/// which the same simulations give. The columns are independent simulations: `fan` may run
+/// them side by side.
 fn jacobian(
     problem: &Problem,
     spec: &ModelSpec,
     th: &[f64],
-    r0: &[f64],
+    base: &Evaluation,
     which: &[usize],
     fan: &dyn Fan,
-) -> Option<DMatrix<f64>> {
+) -> Option<(DMatrix<f64>, DMatrix<f64>)> {
+    let r0 = &base.train_residuals;
     // A column that fails fails the Jacobian: the columns not yet started are skipped then
     // (all of them after it when the fan is serial, as a plain loop would).
     let failed = AtomicBool::new(false);
@@ -62,16 +68,20 @@ fn jacobian(
                 e
             }
         };
-        Some((e.train_residuals, h))
+        Some((e.train_residuals, e.linear, h))
     });
     let mut jac = DMatrix::<f64>::zeros(r0.len(), which.len());
+    let mut linear = DMatrix::<f64>::zeros(base.linear.len(), which.len());
     for (c, col) in columns.into_iter().enumerate() {
-        let (r, h) = col?;
+        let (r, l, h) = col?;
         for (k, v) in r.iter().enumerate() {
             jac[(k, c)] = (v - r0[k]) / h;
         }
+        for (a, v) in l.iter().enumerate().take(base.linear.len()) {
+            linear[(a, c)] = (v - base.linear[a]) / h;
+        }
     }
-    Some(jac)
+    Some((jac, linear))
 }
 
 /// Options of one fit.
@@ -100,6 +110,9 @@ pub struct ParamFit {
     pub jtj: DMatrix<f64>,
     /// Jacobian of the (projected) train residuals at `theta`, over the free parameters.
     pub jacobian: DMatrix<f64>,
+    /// How the closed-form coefficients move with the free parameters at `theta` (rows:
+    /// coefficients, as in [`Evaluation::linear`]).
+    pub linear_jacobian: DMatrix<f64>,
 }
 
 /// Minimises χ²_train over the parameters `free` (others held), from `th0`. With
@@ -143,10 +156,11 @@ pub fn fit_params(
         }
         Some(r)
     };
+    let linear_jacobian: std::cell::RefCell<DMatrix<f64>> = Default::default();
     let jacobian_at = |x: &[f64], _: &DVector<f64>| {
         let b = best.borrow();
-        let r0 = &b.as_ref()?.1.train_residuals;
-        let j = jacobian(problem, spec, &full(x), r0, free, fan)?;
+        let (j, l) = jacobian(problem, spec, &full(x), &b.as_ref()?.1, free, fan)?;
+        *linear_jacobian.borrow_mut() = l;
         Some(match project_out {
             None => j,
             Some(q) => &j - q * (q.transpose() * &j),
@@ -176,6 +190,7 @@ pub fn fit_params(
         eval,
         jtj: res.jtj,
         jacobian: res.jacobian,
+        linear_jacobian: linear_jacobian.into_inner(),
     })
 }
 
@@ -233,21 +248,64 @@ pub fn fit_model(
         }
     })?;
     let scale = chi2_scale(problem, f.eval.chi2_train, free.len());
-    let sd_free: Vec<f64> = crate::linalg::identified_inverse_diagonal(&f.jtj)
-        .into_iter()
-        .map(|v| (v.max(0.0) * scale).sqrt())
+    let cov_free = crate::linalg::identified_inverse(&f.jtj) * scale;
+    // NaN stays NaN (`f64::max` would make it 0, an interval of zero width): the data do not
+    // determine that parameter, and `scan_step_parameters` may give it an interval.
+    let sd_free: Vec<f64> = (0..free.len())
+        .map(|k| match cov_free[(k, k)] {
+            v if v.is_nan() => f64::NAN,
+            v => v.max(0.0).sqrt(),
+        })
         .collect();
     let mut sd = vec![0.0; spec.n_nonlinear()];
     for (k, &i) in free.iter().enumerate() {
         sd[i] = sd_free[k];
     }
+    let mut eval = f.eval;
+    eval.linear_sd = marginal_linear_sd(&eval.linear_sd, scale, &f.linear_jacobian, &cov_free);
     Some(Fitted {
         spec: spec.clone(),
         theta: f.theta,
-        eval: f.eval,
+        eval,
         sd,
         jacobian: f.jacobian,
+        free,
     })
+}
+
+/// The standard errors of the closed-form coefficients with the nonlinear parameters free
+/// rather than held: the least-squares error at the fitted θ (`conditional`, scaled by the
+/// fit's `scale` as θ's covariance is) and the part θ's covariance `cov` carries into them
+/// through `g` (∂coefficient/∂θ), `sd² = scale·sd_cond² + g·cov·gᵀ`. The two parts are
+/// independent to first order: the coefficients read the part of the noise along their
+/// columns, θ the part orthogonal to them. A coefficient that trades with a nonlinear
+/// parameter (a detector's cubic term with the material's stiffening, a drag with the lag)
+/// had an interval that knew nothing of the trade; on a twin record its cubic term came out
+/// 8 σ from the truth. Parameters the fit did not identify (NaN in `cov`) are held.
+fn marginal_linear_sd(
+    conditional: &[f64],
+    scale: f64,
+    g: &DMatrix<f64>,
+    cov: &DMatrix<f64>,
+) -> Vec<f64> {
+    let p = cov.nrows().min(g.ncols());
+    let known: Vec<usize> = (0..p).filter(|&k| cov[(k, k)].is_finite()).collect();
+    conditional
+        .iter()
+        .enumerate()
+        .map(|(a, &sd)| {
+            let carried: f64 = if a < g.nrows() {
+                known
+                    .iter()
+                    .flat_map(|&k| known.iter().map(move |&l| (k, l)))
+                    .map(|(k, l)| g[(a, k)] * cov[(k, l)] * g[(a, l)])
+                    .sum()
+            } else {
+                0.0
+            };
+            (scale * sd * sd + carried.max(0.0)).sqrt()
+        })
+        .collect()
 }
 
 /// The factor the covariance of a fit with χ²_train `chi2` and `n_free` parameters is scaled
@@ -281,8 +339,8 @@ pub fn scan_step_parameters(problem: &Problem, f: &mut Fitted) {
         }
         None
     };
-    for i in 0..f.theta.len() {
-        if f.sd[i].is_nan() && f.jacobian.column(i).iter().all(|&v| v == 0.0) {
+    for (k, &i) in f.free.clone().iter().enumerate() {
+        if f.sd[i].is_nan() && f.jacobian.column(k).iter().all(|&v| v == 0.0) {
             f.sd[i] = match (reach(i, -1.0), reach(i, 1.0)) {
                 (Some(lo), Some(hi)) => lo.max(hi) / 1.96,
                 _ => f64::NAN,
@@ -418,6 +476,25 @@ mod tests {
         (fitted, screened, problem.simulations())
     }
 
+    /// A coefficient's variance is its least-squares variance (scaled) plus what θ's
+    /// covariance carries into it; a parameter the fit did not identify is held.
+    #[test]
+    fn a_coefficient_carries_the_covariance_of_what_it_trades_with() {
+        let g = DMatrix::from_row_slice(2, 2, &[2.0, 0.0, 1.0, 1.0]);
+        let cov = DMatrix::from_row_slice(2, 2, &[0.25, 0.1, 0.1, 1.0]);
+        let sd = marginal_linear_sd(&[1.0, 0.5], 4.0, &g, &cov);
+        // 4·1 + 2·0.25·2 = 5; 4·0.25 + (0.25 + 2·0.1 + 1) = 2.45.
+        assert!((sd[0] - 5f64.sqrt()).abs() < 1e-12, "{sd:?}");
+        assert!((sd[1] - 2.45f64.sqrt()).abs() < 1e-12, "{sd:?}");
+        let unknown = DMatrix::from_row_slice(2, 2, &[0.25, f64::NAN, f64::NAN, f64::NAN]);
+        let sd = marginal_linear_sd(&[1.0, 0.5], 1.0, &g, &unknown);
+        assert!((sd[0] - 2f64.sqrt()).abs() < 1e-12, "{sd:?}");
+        assert!((sd[1] - 0.5f64.hypot(0.5)).abs() < 1e-12, "{sd:?}");
+        // No θ at all (a model of closed-form terms only): the least-squares error, scaled.
+        let none = marginal_linear_sd(&[1.0], 9.0, &DMatrix::zeros(1, 0), &DMatrix::zeros(0, 0));
+        assert_eq!(none, vec![3.0]);
+    }
+
     #[test]
     fn the_fit_does_not_depend_on_the_order_the_fan_runs_jobs_in() {
         let (a, sa, na) = run(&Serial);
@@ -427,7 +504,10 @@ mod tests {
         assert_eq!(a.eval.chi2_train.to_bits(), b.eval.chi2_train.to_bits());
         assert_eq!(a.eval.chi2_held.to_bits(), b.eval.chi2_held.to_bits());
         assert_eq!(a.eval.linear, b.eval.linear);
-        assert_eq!(a.sd, b.sd);
+        // (NaN where the data do not determine a parameter: compared bit for bit.)
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&a.sd), bits(&b.sd));
+        assert_eq!(bits(&a.eval.linear_sd), bits(&b.eval.linear_sd));
         assert_eq!(a.jacobian, b.jacobian);
         assert_eq!(sa.0.to_bits(), sb.0.to_bits());
         assert_eq!(sa.1, sb.1);

@@ -2332,6 +2332,11 @@ mod tests {
             (cubic.value / truth - 1.0).abs() < 0.25,
             "{cubic:?} against {truth}"
         );
+        // Its interval carries its trade with the nonlinear parameters (the material's
+        // stiffening): held at the fit, it was [-0.00350, -0.00336] and missed the truth.
+        let [lo, hi] = cubic.ci95;
+        assert!(lo < truth && truth < hi, "{cubic:?} against {truth}");
+        assert!(hi - lo < 0.8 * truth.abs(), "{cubic:?}");
     }
 
     const CUBIC_NEAR_FLOOR_PER_V2: f64 = -0.004;
