@@ -49,22 +49,15 @@ pub fn scaled_rcond(m: &DMatrix<f64>) -> f64 {
     rcond_sym(&unit_diagonal(m).0)
 }
 
-/// The diagonal of the inverse of a symmetric positive-semidefinite matrix (a Gauss–Newton
-/// `JᵀJ`), for the parameters it determines, and NaN for those it does not.
+/// The inverse of a symmetric positive-semidefinite matrix (a Gauss–Newton `JᵀJ`) over the
+/// parameters it determines, with NaN in the rows and columns of those it does not.
 ///
 /// [`spd_inverse`] gives all or nothing: one parameter the data say nothing about (a zero
 /// column, such as the length of an adhesive neck, whose snap-off moves by whole samples
 /// and so has no local derivative) cost every other parameter its interval too. Here such
 /// parameters are set aside one by one — first those with no diagonal, then, while the rest
 /// stays singular, the one that weighs most in the direction the matrix knows least — and
-/// the rest is inverted. Their variances are conditional on the set-aside parameters.
-pub fn identified_inverse_diagonal(m: &DMatrix<f64>) -> Vec<f64> {
-    let inv = identified_inverse(m);
-    (0..m.nrows()).map(|i| inv[(i, i)]).collect()
-}
-
-/// The inverse that [`identified_inverse_diagonal`] takes the diagonal of, whole: the rows
-/// and columns of the parameters set aside are NaN.
+/// the rest is inverted. Their covariances are conditional on the set-aside parameters.
 pub fn identified_inverse(m: &DMatrix<f64>) -> DMatrix<f64> {
     let n = m.nrows();
     let mut out = DMatrix::from_element(n, n, f64::NAN);
@@ -97,28 +90,41 @@ mod tests {
     use super::*;
 
     /// A parameter with no column leaves the others their exact variances; a full-rank
-    /// matrix gives its inverse's diagonal; two parameters that are one leave only the third.
+    /// matrix gives its inverse; two parameters that are one leave only the third.
     #[test]
     fn undetermined_parameters_do_not_take_the_others_with_them() {
+        let diagonal = |m: &DMatrix<f64>| -> Vec<f64> {
+            let inv = identified_inverse(m);
+            (0..m.nrows()).map(|i| inv[(i, i)]).collect()
+        };
         let full = DMatrix::from_row_slice(2, 2, &[4.0, 1.0, 1.0, 2.0]);
         let inv = spd_inverse(&full).unwrap();
-        let d = identified_inverse_diagonal(&full);
-        assert!((d[0] - inv[(0, 0)]).abs() < 1e-12 && (d[1] - inv[(1, 1)]).abs() < 1e-12);
+        let whole = identified_inverse(&full);
+        assert!((whole - &inv).amax() < 1e-12, "{inv}");
+        let d = diagonal(&full);
         assert!((d[0] - 2.0 / 7.0).abs() < 1e-12, "{d:?}");
 
         let with_zero =
             DMatrix::from_row_slice(3, 3, &[4.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 2.0]);
-        let d = identified_inverse_diagonal(&with_zero);
+        let d = diagonal(&with_zero);
         assert!(d[1].is_nan());
         assert!(
             (d[0] - 2.0 / 7.0).abs() < 1e-12 && (d[2] - 4.0 / 7.0).abs() < 1e-12,
             "{d:?}"
         );
+        // The covariance of the two it determines, and NaN across the one it does not.
+        let c = identified_inverse(&with_zero);
+        assert!((c[(0, 2)] + 1.0 / 7.0).abs() < 1e-12, "{c}");
+        assert!((c[(2, 0)] + 1.0 / 7.0).abs() < 1e-12, "{c}");
+        assert!(
+            (0..3).all(|j| c[(1, j)].is_nan() && c[(j, 1)].is_nan()),
+            "{c}"
+        );
 
         // Parameters 0 and 1 enter only as their sum: one of them is set aside and the other
         // keeps the variance it has with that one fixed; the third is independent.
         let aliased = DMatrix::from_row_slice(3, 3, &[1.0, 1.0, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0, 5.0]);
-        let d = identified_inverse_diagonal(&aliased);
+        let d = diagonal(&aliased);
         assert_eq!(d.iter().filter(|v| v.is_nan()).count(), 1, "{d:?}");
         assert!((d[2] - 0.2).abs() < 1e-12);
         assert!(d[..2].iter().any(|v| (v - 1.0).abs() < 1e-9), "{d:?}");

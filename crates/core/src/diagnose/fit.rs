@@ -288,23 +288,15 @@ fn marginal_linear_sd(
     g: &DMatrix<f64>,
     cov: &DMatrix<f64>,
 ) -> Vec<f64> {
-    let p = cov.nrows().min(g.ncols());
-    let known: Vec<usize> = (0..p).filter(|&k| cov[(k, k)].is_finite()).collect();
+    let known: Vec<usize> = (0..cov.nrows())
+        .filter(|&k| cov[(k, k)].is_finite())
+        .collect();
+    let g = g.select_columns(&known);
+    let carried = &g * cov.select_rows(&known).select_columns(&known) * g.transpose();
     conditional
         .iter()
         .enumerate()
-        .map(|(a, &sd)| {
-            let carried: f64 = if a < g.nrows() {
-                known
-                    .iter()
-                    .flat_map(|&k| known.iter().map(move |&l| (k, l)))
-                    .map(|(k, l)| g[(a, k)] * cov[(k, l)] * g[(a, l)])
-                    .sum()
-            } else {
-                0.0
-            };
-            (scale * sd * sd + carried.max(0.0)).sqrt()
-        })
+        .map(|(a, &sd)| (scale * sd * sd + carried[(a, a)].max(0.0)).sqrt())
         .collect()
 }
 
@@ -339,7 +331,7 @@ pub fn scan_step_parameters(problem: &Problem, f: &mut Fitted) {
         }
         None
     };
-    for (k, &i) in f.free.clone().iter().enumerate() {
+    for (k, &i) in f.free.iter().enumerate() {
         if f.sd[i].is_nan() && f.jacobian.column(k).iter().all(|&v| v == 0.0) {
             f.sd[i] = match (reach(i, -1.0), reach(i, 1.0)) {
                 (Some(lo), Some(hi)) => lo.max(hi) / 1.96,

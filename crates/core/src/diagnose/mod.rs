@@ -853,17 +853,21 @@ pub fn diagnose_with(
         // 4. Full refits of the strongest, then pairs.
         let distorted = nom.eval.chi2_train / n_tr > 1.2;
         let mut singles: Vec<(Effect, Fitted)> = vec![];
-        let mut chosen =
-            chosen_for_refit(&screened, &locations_before, opts.full_refits, penalty_of);
-        // A hard reference reads the instrument's chain over the wider range a hard sample
-        // deflects through: an effect of the chain near the floor on the sample may stand out
-        // there (a detector's cubic term). Each chain candidate's screened model is read on
-        // the reference too, and one whose screening and reading together beat its price is
-        // refitted: its judgement then weighs the reference in full, for and against. The
-        // screening itself, and what it reports, stays the sample's alone.
-        for e in reference_supported(&problem, rec, nom, &screened, fan, penalty_of) {
-            mark_for_refit(&screened, &mut chosen, e);
-        }
+        let by_reference = reference_supported(
+            &problem,
+            reference_witness(&problem, rec, nom).as_ref(),
+            nom,
+            &screened,
+            fan,
+            penalty_of,
+        );
+        let chosen = chosen_for_refit(
+            &screened,
+            &locations_before,
+            &by_reference,
+            opts.full_refits,
+            penalty_of,
+        );
         let to_refit: Vec<usize> = match again {
             // The trading candidates, and those the screening against the better nominal fit
             // picks that were not refitted before: the first screening, against a nominal
@@ -1036,11 +1040,7 @@ pub fn diagnose_with(
     };
     // The same drive on a hard reference reads the instrument's chain without the sample:
     // each model's reading of it is scored there too (`witness`).
-    let reference = rec
-        .reference_deflection_v
-        .as_ref()
-        .zip(problem.simulate_reference(&nom.spec, &nom.theta, &nom.eval.linear))
-        .and_then(|(r, path)| ReferenceWitness::new(r, &path, &problem.train, &problem.held));
+    let reference = reference_witness(&problem, rec, &nom);
     let reference_chi2 = |f: &Fitted| -> Option<(f64, f64)> {
         let w = reference.as_ref()?;
         Some(
@@ -1423,10 +1423,12 @@ fn against_floor(
 
 /// The candidates refitted in full, as indices into `screened` (strongest first): those whose
 /// screening beats their price (`penalty_of`), `full_refits` at most; those a located mismatch
-/// points at; and the strongest one's look-alikes.
+/// points at; the strongest one's look-alikes; and those the hard reference supports
+/// (`by_reference`, [`reference_supported`]).
 fn chosen_for_refit(
     screened: &[(Effect, f64, Vec<f64>)],
     locations_before: &[Location],
+    by_reference: &[Effect],
     full_refits: usize,
     penalty_of: impl Fn(Effect) -> f64,
 ) -> Vec<usize> {
@@ -1457,28 +1459,42 @@ fn chosen_for_refit(
     } else {
         &[]
     };
-    for e in implied.into_iter().chain(look_alikes.iter().copied()) {
+    for e in implied
+        .into_iter()
+        .chain(look_alikes.iter().copied())
+        .chain(by_reference.iter().copied())
+    {
         mark_for_refit(screened, &mut to_refit, e);
     }
     to_refit
 }
 
+/// The witness of the recording's `reference_deflection_v` column for the model `nom` (its
+/// reading of the reference sets the witness's noise and nominal χ²); `None` without one.
+fn reference_witness(problem: &Problem, rec: &Recording, nom: &Fitted) -> Option<ReferenceWitness> {
+    let column = rec.reference_deflection_v.as_ref()?;
+    let path = problem.simulate_reference(&nom.spec, &nom.theta, &nom.eval.linear)?;
+    ReferenceWitness::new(column, &path, &problem.train, &problem.held)
+}
+
 /// The screened candidates of the instrument's chain ([`model::CHAIN_EFFECTS`]) that beat
 /// their price (`penalty_of`) only with the hard reference's reading of their screened model
-/// (its train χ² drop against the nominal model's reading, [`ReferenceWitness`]) added to
-/// their screening; none without a reference column. Two simulations per chain candidate.
+/// (its train χ² drop against `nom`'s reading, scored by `witness`) added to their screening;
+/// none without a witness. Two simulations per such candidate.
+///
+/// A hard reference reads the instrument's chain over the wider range a hard sample deflects
+/// through: an effect of the chain near the floor on the sample may stand out there (a
+/// detector's cubic term). A candidate refitted for it is then judged with the reference in
+/// full, for and against; the screening, and what it reports, stays the sample's alone.
 fn reference_supported(
     problem: &Problem,
-    rec: &Recording,
+    witness: Option<&ReferenceWitness>,
     nom: &Fitted,
     screened: &[(Effect, f64, Vec<f64>)],
     fan: &dyn Fan,
     penalty_of: impl Fn(Effect) -> f64,
 ) -> Vec<Effect> {
-    let Some(witness) = rec.reference_deflection_v.as_ref().and_then(|r| {
-        let path = problem.simulate_reference(&nom.spec, &nom.theta, &nom.eval.linear)?;
-        ReferenceWitness::new(r, &path, &problem.train, &problem.held)
-    }) else {
+    let Some(witness) = witness else {
         return vec![];
     };
     let below: Vec<&(Effect, f64, Vec<f64>)> = screened

@@ -1182,26 +1182,25 @@ impl Problem {
         // The closed-form terms the reference run shares, at the model's own coefficients:
         // the same detector reads it (over the wider range a hard sample deflects through),
         // and the same drag pushes the lever wherever the tip is off the surface.
-        let coefficient = |e: Effect, k: usize| linear.get(idx_of(spec, e, self.mains_hz) + k);
-        let mut closed = vec![0.0; n];
+        // Their columns are of the clean reading: all are taken before any is added.
+        let at = |e: Effect| idx_of(spec, e, self.mains_hz);
+        let mut terms: Vec<(f64, Vec<f64>)> = vec![];
         if spec.has(Effect::DetectorNonlinearity) {
-            for (k, col) in nonlinearity_columns(spec.nonlinearity, &deflection)
-                .iter()
-                .enumerate()
-            {
-                let c = *coefficient(Effect::DetectorNonlinearity, k)?;
-                closed.iter_mut().zip(col).for_each(|(a, v)| *a += c * v);
+            let cols = nonlinearity_columns(spec.nonlinearity, &deflection);
+            for (k, col) in cols.into_iter().enumerate() {
+                terms.push((*linear.get(at(Effect::DetectorNonlinearity) + k)?, col));
             }
         }
         if spec.has(Effect::HydrodynamicDrag) {
-            let c = *coefficient(Effect::HydrodynamicDrag, 0)?;
             let col = self.drag_column(&base_nm, &lever_share);
-            closed.iter_mut().zip(&col).for_each(|(a, v)| *a += c * v);
+            terms.push((*linear.get(at(Effect::HydrodynamicDrag))?, col));
         }
-        deflection
-            .iter_mut()
-            .zip(&closed)
-            .for_each(|(d, a)| *d += a);
+        for (c, col) in terms {
+            deflection
+                .iter_mut()
+                .zip(col)
+                .for_each(|(d, v)| *d += c * v);
+        }
         deflection
             .iter()
             .all(|v| v.is_finite())
