@@ -138,12 +138,13 @@ pub fn solve_lazy(
             };
             let mut step = -chol.solve(&g);
             // The whole step is scaled to the bound, its direction kept. Clamping each
-            // component instead was tried on the diagnosis's fits (2026-11-25): where a weak
-            // Prony term's retardation time runs off below the sampling interval, the step is
-            // huge along it and the scaling moves every other parameter by a sliver, so one
-            // nominal fit crawled through nine restarts (34050 simulations; 12511 clamped per
-            // component). But over the concealed corpus's seed 1 the clamp cost more in all
-            // (644 s against 617 s) and ranked the right effect first on 17 of 19 cases, not 18.
+            // component instead was tried in the diagnosis's nominal fits (2026-11-25): where
+            // a weak Prony term's retardation time runs off below the sampling interval, the
+            // step is huge along it and the scaling moves every other parameter by a sliver
+            // (nine 60-iteration restarts of one nominal fit; that diagnosis ran 34050
+            // simulations, 12511 with the clamp). But over the concealed corpus's seed 1 the
+            // clamp cost more in all (644 s against 617 s) and ranked the right effect first on
+            // 17 of 19 cases, not 18.
             let big = step.amax();
             if big > opts.max_step {
                 step *= opts.max_step / big;
