@@ -26,6 +26,9 @@ pub struct LmOptions {
     /// Step size (relative to 1 + |p|) below which the fit has converged.
     pub step_tolerance: f64,
     pub damping: Damping,
+    /// Accepted steps after an exact Jacobian on which the Jacobian is Broyden's rank-one
+    /// update instead (0: exact at every accepted point). See [`solve_lazy`].
+    pub broyden_steps: usize,
 }
 
 /// Marquardt's damping schedule: λ starts at 1e-3, is divided by `down` after an accepted
@@ -61,6 +64,7 @@ impl Default for LmOptions {
             cost_tolerance_abs: 0.0,
             step_tolerance: 1e-11,
             damping: Damping::default(),
+            broyden_steps: 0,
         }
     }
 }
@@ -102,6 +106,13 @@ pub fn solve(p0: &[f64], eval: impl Fn(&[f64]) -> Evaluation, opts: LmOptions) -
 /// for only at the start and at accepted points. Where a Jacobian costs one model run per
 /// parameter (finite differences on a simulation), computing it at rejected trial points too
 /// would double the cost of a fit.
+///
+/// With `opts.broyden_steps` = k > 0 it is asked for at most every k+1 accepted points: in
+/// between, the Jacobian is Broyden's rank-one update from the step taken and the residuals'
+/// change, which costs nothing. An updated Jacobian is only trusted to propose steps: where
+/// its step fails, or the fit would stop (small gain, small step, the iteration limit), the
+/// exact one is asked for first, so the fit stops only on an exact Jacobian and returns one
+/// (`JᵀJ` is the inverse covariance).
 pub fn solve_lazy(
     p0: &[f64],
     residuals: impl Fn(&[f64]) -> Option<DVector<f64>>,
@@ -117,16 +128,25 @@ pub fn solve_lazy(
     let n = p.len();
     let mut converged = false;
     let mut iterations = 0;
+    // Accepted steps since the last exact Jacobian (0: `jac` is exact at `p`).
+    let mut updated = 0;
     while iterations < opts.max_iterations {
         iterations += 1;
         let g = jac.transpose() * &r;
         if g.amax() <= 1e-30 || cost <= 1e-300 {
+            if updated > 0 {
+                jac = jacobian(p.as_slice(), &r)?;
+                jtj = jac.transpose() * &jac;
+                updated = 0;
+                continue;
+            }
             converged = true;
             break;
         }
         let d = opts.damping;
         let diag: Vec<f64> = (0..n).map(|i| jtj[(i, i)].max(d.diag_floor)).collect();
         let mut accepted = false;
+        let mut refreshed = false;
         while lambda < d.max {
             let mut a = jtj.clone();
             for (i, d) in diag.iter().enumerate() {
@@ -158,16 +178,36 @@ pub fn solve_lazy(
                         gain <= opts.cost_tolerance * cost || gain <= opts.cost_tolerance_abs;
                     let small_step =
                         (0..n).all(|i| step[i].abs() <= opts.step_tolerance * (1.0 + p[i].abs()));
+                    let stopping = small_gain || small_step || iterations == opts.max_iterations;
+                    // A small gain or step on an updated Jacobian ends nothing: the exact one
+                    // may still see a way down.
+                    let exact = updated == 0;
                     p = trial;
-                    jac = jacobian(p.as_slice(), &r_new)?;
+                    if updated < opts.broyden_steps && !stopping {
+                        // J += (Δr − J·s) sᵀ / sᵀs: the smallest change that makes J map the
+                        // step taken onto the residuals' change along it.
+                        let miss = (&r_new - &r) - &jac * &step;
+                        jac += miss * step.transpose() / step.norm_squared();
+                        updated += 1;
+                    } else {
+                        jac = jacobian(p.as_slice(), &r_new)?;
+                        updated = 0;
+                        converged = exact && (small_gain || small_step);
+                    }
                     r = r_new;
                     jtj = jac.transpose() * &jac;
                     cost = new_cost;
                     lambda = (lambda / d.down).max(d.min);
                     accepted = true;
-                    if small_gain || small_step {
-                        converged = true;
-                    }
+                    break;
+                }
+                _ if updated > 0 => {
+                    // The updated Jacobian's step failed: retry with the exact one, at the
+                    // same damping, before damping harder.
+                    jac = jacobian(p.as_slice(), &r)?;
+                    jtj = jac.transpose() * &jac;
+                    updated = 0;
+                    refreshed = true;
                     break;
                 }
                 _ => lambda *= d.up,
@@ -176,7 +216,7 @@ pub fn solve_lazy(
         if converged {
             break;
         }
-        if !accepted {
+        if !accepted && !refreshed {
             // No step of any damping lowers the cost: a (local) minimum to working precision.
             converged = true;
             break;
@@ -258,6 +298,53 @@ mod tests {
             res_calls.get()
         );
         assert!(jac_calls.get() <= res.iterations + 1);
+    }
+
+    /// With Broyden's update between exact Jacobians the fit still reaches Rosenbrock's
+    /// minimum, asks for fewer exact Jacobians than the exact fit does, and returns the exact
+    /// Jacobian at the solution (its `JᵀJ` is a covariance), not an updated one.
+    #[test]
+    fn broyden_updates_save_jacobians_and_end_on_an_exact_one() {
+        let exact_jacobian =
+            |p: &[f64]| DMatrix::from_row_slice(2, 2, &[-20.0 * p[0], 10.0, -1.0, 0.0]);
+        let run = |broyden_steps: usize| {
+            let calls = std::cell::Cell::new(0);
+            let res = solve_lazy(
+                &[-1.2, 1.0],
+                |p| {
+                    Some(DVector::from_vec(vec![
+                        10.0 * (p[1] - p[0] * p[0]),
+                        1.0 - p[0],
+                    ]))
+                },
+                |p, _| {
+                    calls.set(calls.get() + 1);
+                    Some(exact_jacobian(p))
+                },
+                LmOptions {
+                    max_step: 10.0,
+                    broyden_steps,
+                    ..Default::default()
+                },
+            )
+            .unwrap();
+            (res, calls.get())
+        };
+        let (exact, exact_calls) = run(0);
+        let (updated, updated_calls) = run(2);
+        for res in [&exact, &updated] {
+            assert!(res.converged);
+            assert!(
+                (res.params[0] - 1.0).abs() < 1e-8 && (res.params[1] - 1.0).abs() < 1e-8,
+                "{:?}",
+                res.params
+            );
+        }
+        assert!(
+            updated_calls < exact_calls,
+            "{updated_calls} exact Jacobians with updates, {exact_calls} without"
+        );
+        assert_eq!(updated.jacobian, exact_jacobian(&updated.params));
     }
 
     /// Rosenbrock as least squares: r = (10(y − x²), 1 − x); minimum at (1, 1).
