@@ -91,8 +91,6 @@ fn jacobian(
 /// one step changes the Jacobian little. With 2, the concealed corpus's seed 1 took 442 s in
 /// all rather than 617 s, its masked hysteresis case 28.9 s rather than 44.3 s alone, with the
 /// same verdicts (18 of 19 right, both nulls quiet). 4 was no faster on that case (30.7 s).
-/// The candidates' refits count an updated step as half an iteration (see `diagnose`), which
-/// puts that case at 35.9 s.
 const BROYDEN_STEPS: usize = 2;
 
 /// Options of one fit.
@@ -101,9 +99,6 @@ pub struct FitOptions {
     pub max_iterations: usize,
     /// Largest step of any θ component per iteration (log units: a factor e^max).
     pub max_step: f64,
-    /// What a step on a Broyden-updated Jacobian counts against `max_iterations`
-    /// ([`LmOptions::updated_step_cost`]).
-    pub updated_step_cost: f64,
 }
 
 impl Default for FitOptions {
@@ -111,7 +106,6 @@ impl Default for FitOptions {
         Self {
             max_iterations: 30,
             max_step: 1.0,
-            updated_step_cost: 1.0,
         }
     }
 }
@@ -197,7 +191,6 @@ pub fn fit_params(
             diag_floor: 1e-12,
         },
         broyden_steps: BROYDEN_STEPS,
-        updated_step_cost: opts.updated_step_cost,
     };
     let x0: Vec<f64> = free.iter().map(|&i| th0[i]).collect();
     let res = solve_lazy(&x0, residuals, jacobian_at, lm_opts)?;
@@ -378,7 +371,6 @@ pub fn screen(
     let opts = FitOptions {
         max_iterations: 10,
         max_step: 1.5,
-        ..FitOptions::default()
     };
     let projected = |r: &[f64]| {
         let rv = DVector::from_column_slice(r);
@@ -474,7 +466,6 @@ mod tests {
         let opts = FitOptions {
             max_iterations: 6,
             max_step: 1.0,
-            ..FitOptions::default()
         };
         let fitted = fit_model(&problem, &spec, &[start], opts, fan).expect("fit");
         let nominal = fit_model(&problem, &nominal_spec, &[th0], opts, fan).expect("fit");

@@ -684,7 +684,6 @@ pub fn diagnose_with(
     let nominal_opts = FitOptions {
         max_iterations: 60,
         max_step: 1.0,
-        ..FitOptions::default()
     };
     // Every nominal fit is restarted from where it stopped while that gains (`restarted`).
     let polished = |problem: &Problem, f: Fitted| -> Fitted {
@@ -787,15 +786,9 @@ pub fn diagnose_with(
     );
     let th = opts.thresholds;
     let n_tr = problem.train.len() as f64;
-    // A step on a Broyden-updated Jacobian counts half: a candidate's refit is one fit, not
-    // restarted as the nominal is while it gains (`restarted`), so it must reach as far as
-    // it did on exact Jacobians. Counted whole, a substrate's refit on an independent
-    // simulator's record stopped short (evidence 149 against 799), and the creep it looks
-    // like was named first.
     let refit_opts = FitOptions {
         max_iterations: 40,
         max_step: 1.0,
-        updated_step_cost: 0.5,
     };
     let n_ho = problem.held.len() as f64;
     // The train χ² drop a single effect must beat: its BIC penalty and the margin.
@@ -1967,7 +1960,6 @@ impl StartContext {
         let opts = FitOptions {
             max_iterations: 20,
             max_step: 1.0,
-            ..FitOptions::default()
         };
         // Refits with the parameters from `from` on free (the contact point's is 1).
         let refit = |t: Vec<f64>, from: usize| -> Vec<f64> {

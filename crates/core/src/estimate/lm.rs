@@ -29,11 +29,6 @@ pub struct LmOptions {
     /// Accepted steps after an exact Jacobian on which the Jacobian is Broyden's rank-one
     /// update instead (0: exact at every accepted point). See [`solve_lazy`].
     pub broyden_steps: usize,
-    /// What a step on an updated Jacobian counts against `max_iterations` (1: a whole
-    /// iteration). Such a step costs one model run where an exact one costs one per
-    /// parameter, and it goes less far: a fit that has one run to its limit may count it as
-    /// part of one, to reach as far as it did on exact Jacobians.
-    pub updated_step_cost: f64,
 }
 
 /// Marquardt's damping schedule: λ starts at 1e-3, is divided by `down` after an accepted
@@ -70,7 +65,6 @@ impl Default for LmOptions {
             step_tolerance: 1e-11,
             damping: Damping::default(),
             broyden_steps: 0,
-            updated_step_cost: 1.0,
         }
     }
 }
@@ -136,17 +130,8 @@ pub fn solve_lazy(
     let mut iterations = 0;
     // Accepted steps since the last exact Jacobian (0: `jac` is exact at `p`).
     let mut updated = 0;
-    // Iterations charged against `max_iterations`: one per step on an exact Jacobian,
-    // `updated_step_cost` per step on an updated one.
-    let mut spent = 0.0f64;
-    let budget = opts.max_iterations as f64 - 1e-9;
-    while spent < budget {
+    while iterations < opts.max_iterations {
         iterations += 1;
-        spent += if updated > 0 {
-            opts.updated_step_cost
-        } else {
-            1.0
-        };
         let g = jac.transpose() * &r;
         if g.amax() <= 1e-30 || cost <= 1e-300 {
             if updated > 0 {
@@ -193,9 +178,7 @@ pub fn solve_lazy(
                         gain <= opts.cost_tolerance * cost || gain <= opts.cost_tolerance_abs;
                     let small_step =
                         (0..n).all(|i| step[i].abs() <= opts.step_tolerance * (1.0 + p[i].abs()));
-                    // (The last step the budget allows ends on an exact Jacobian.)
-                    let last = spent + opts.updated_step_cost.min(1.0) > budget;
-                    let stopping = small_gain || small_step || last;
+                    let stopping = small_gain || small_step || iterations == opts.max_iterations;
                     // A small gain or step on an updated Jacobian ends nothing: the exact one
                     // may still see a way down.
                     let exact = updated == 0;
