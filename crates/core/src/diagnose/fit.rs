@@ -2,9 +2,8 @@
 //! cheap screening step that ranks candidates before the full refits.
 //!
 //! The solver is the project's Levenberg–Marquardt ([`crate::estimate::lm::solve_lazy`]) with
-//! a finite-difference Jacobian, which that entry point asks for only at accepted points (in
-//! the nominal fit only every third time, Broyden's update in between): each Jacobian costs
-//! one twin simulation per parameter.
+//! a finite-difference Jacobian, which that entry point asks for only at accepted points: each
+//! Jacobian costs one twin simulation per parameter.
 
 use super::fan::{self, Fan};
 use super::model::{frees_parameter, Evaluation, ModelSpec, Problem};
@@ -85,28 +84,12 @@ fn jacobian(
     Some((jac, linear))
 }
 
-/// Accepted steps of the nominal fit on Broyden's update of the Jacobian between two
-/// finite-difference ones ([`LmOptions::broyden_steps`]; see [`FitOptions::broyden_steps`]).
-/// Four fifths of a diagnosis were finite-difference Jacobians, and half its solver work was
-/// in nominal fits that crawl to their iteration limit, restarted while they gain, where one
-/// step changes the Jacobian little.
-pub const BROYDEN_STEPS: usize = 2;
-
 /// Options of one fit.
 #[derive(Debug, Clone, Copy)]
 pub struct FitOptions {
     pub max_iterations: usize,
     /// Largest step of any θ component per iteration (log units: a factor e^max).
     pub max_step: f64,
-    /// Accepted steps on Broyden's update between finite-difference Jacobians (0: none).
-    ///
-    /// The nominal fit takes [`BROYDEN_STEPS`]; a candidate's refit takes none. With the
-    /// update in every fit, the concealed corpus's seed 1 took 442 s rather than 617 s, but
-    /// refits stopped short: two pairs lost their second effect, leaving 2.6 and 2.9 χ² per
-    /// sample; over seeds 1–3 the chosen model was at the floor on 47 of 53 effect cases,
-    /// under the acceptance test's 90 %; and an independent simulator's substrate was named
-    /// creep. Counting an updated step as half an iteration in refits did not mend the floor.
-    pub broyden_steps: usize,
 }
 
 impl Default for FitOptions {
@@ -114,7 +97,6 @@ impl Default for FitOptions {
         Self {
             max_iterations: 30,
             max_step: 1.0,
-            broyden_steps: 0,
         }
     }
 }
@@ -199,7 +181,6 @@ pub fn fit_params(
             max: 1e12,
             diag_floor: 1e-12,
         },
-        broyden_steps: opts.broyden_steps,
     };
     let x0: Vec<f64> = free.iter().map(|&i| th0[i]).collect();
     let res = solve_lazy(&x0, residuals, jacobian_at, lm_opts)?;
@@ -380,7 +361,6 @@ pub fn screen(
     let opts = FitOptions {
         max_iterations: 10,
         max_step: 1.5,
-        ..FitOptions::default()
     };
     let projected = |r: &[f64]| {
         let rv = DVector::from_column_slice(r);
@@ -476,7 +456,6 @@ mod tests {
         let opts = FitOptions {
             max_iterations: 6,
             max_step: 1.0,
-            ..FitOptions::default()
         };
         let fitted = fit_model(&problem, &spec, &[start], opts, fan).expect("fit");
         let nominal = fit_model(&problem, &nominal_spec, &[th0], opts, fan).expect("fit");

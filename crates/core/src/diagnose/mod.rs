@@ -684,7 +684,6 @@ pub fn diagnose_with(
     let nominal_opts = FitOptions {
         max_iterations: 60,
         max_step: 1.0,
-        broyden_steps: fit::BROYDEN_STEPS,
     };
     // Every nominal fit is restarted from where it stopped while that gains (`restarted`).
     let polished = |problem: &Problem, f: Fitted| -> Fitted {
@@ -790,7 +789,6 @@ pub fn diagnose_with(
     let refit_opts = FitOptions {
         max_iterations: 40,
         max_step: 1.0,
-        ..FitOptions::default()
     };
     let n_ho = problem.held.len() as f64;
     // The train χ² drop a single effect must beat: its BIC penalty and the margin.
@@ -1962,7 +1960,6 @@ impl StartContext {
         let opts = FitOptions {
             max_iterations: 20,
             max_step: 1.0,
-            ..FitOptions::default()
         };
         // Refits with the parameters from `from` on free (the contact point's is 1).
         let refit = |t: Vec<f64>, from: usize| -> Vec<f64> {
