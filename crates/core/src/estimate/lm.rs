@@ -102,15 +102,6 @@ pub fn solve(p0: &[f64], eval: impl Fn(&[f64]) -> Evaluation, opts: LmOptions) -
 /// for only at the start and at accepted points. Where a Jacobian costs one model run per
 /// parameter (finite differences on a simulation), computing it at rejected trial points too
 /// would double the cost of a fit.
-///
-/// Broyden's rank-one update in place of every second and third exact Jacobian was tried
-/// (2026-11-26, efebcae–51621b0; exact again wherever an updated one's step failed or the fit
-/// would stop). In all the diagnosis's fits it took the concealed corpus's seed 1 from 617 s
-/// to 442 s and its masked hysteresis case from 44.3 s to 28.9 s, but over seeds 1–3 the
-/// chosen model reached the floor on only 47 of 53 effect cases (the test asks 90 %), and the
-/// independent simulator's set fell from 21/28 to 20/28. In the nominal fit alone that set
-/// fell to 19/28 (a resonance record left unexplained). The diagnosis's ties and fragile basins
-/// move with any change of path, and this one moved them the wrong way.
 pub fn solve_lazy(
     p0: &[f64],
     residuals: impl Fn(&[f64]) -> Option<DVector<f64>>,
