@@ -181,15 +181,6 @@ pub fn fit_params(
             max: 1e12,
             diag_floor: 1e-12,
         },
-        // The residuals' own curvature is modelled too: where two Prony terms meet at one
-        // retardation time, `JᵀJ` has almost no curvature along the difference of the two
-        // while the residuals' second derivatives do, and Gauss–Newton's steps flip sign
-        // along it, their damping throttling every other direction (see `lm::SecondOrder`).
-        // In the nominal fit alone it lost two fragile records of the independent
-        // simulator's set (rec19, a tie; rec21, whose resonance refit then started from two
-        // terms met exactly and stayed in a worse basin); in every fit that set stays at
-        // 21/28 (rec31 gained, rec20 lost).
-        second_order: true,
     };
     // Every Jacobian is a finite-difference one. Broyden's rank-one update for two of every
     // three accepted steps was tried (2026-11-26, efebcae–51621b0; exact again wherever an
@@ -200,6 +191,17 @@ pub fn fit_params(
     // chosen model reached the floor on 47 of seeds 1–3's 53 effect cases (the test asks
     // 90 %). In the nominal fit alone the set fell to 19/28. The diagnosis's ties and fragile
     // basins move with any change of the solver's path, and this one moved them the wrong way.
+    //
+    // The model is Gauss–Newton's `JᵀJ` alone. NL2SOL's secant model of the residuals' own
+    // curvature (Dennis, Gay & Welsch 1981; used while it predicted the last step better) was
+    // tried too (2026-11-26, 3d148ab, reverted). It cures the crawl `restarted` describes:
+    // the masked hysteresis case fell from 26567 simulations (49.7 s) to 13848 (24.7 s), its
+    // nominal stage from 9772 to 1317. In every fit: seed 1 named 19/19 right (was 18/19),
+    // the independent simulator's set stayed at 21/28 (rec31 gained, rec20 lost), but over
+    // seeds 1–3 the chosen model reached the floor on 45 of 53 effect cases (the test asks
+    // 48), and fits that did not crawl took a little longer (seed 1: 609 s against 579 s). In
+    // the nominal fit alone: seed 1 19/19 and 18/19 at the floor, but the set fell to 19/28
+    // (rec19, a tie; rec21, whose resonance refit started from two terms met exactly).
     let x0: Vec<f64> = free.iter().map(|&i| th0[i]).collect();
     let res = solve_lazy(&x0, residuals, jacobian_at, lm_opts)?;
     let (_, eval) = best.into_inner()?;
@@ -222,12 +224,13 @@ pub fn fit_params(
 ///
 /// A schedule that adapts the damping to the gain ratio (Nielsen's) was tried in place of
 /// the fixed factors (2026-11-25): the crawl it was meant to shorten (a nominal fit gaining
-/// about 1 % per restart) cost the same (33134 simulations against 34050). That crawl's
-/// cause was found later (2026-11-26): its two Prony terms had met at one retardation time,
-/// and each step flipped sign along the difference of the two, a direction along which
-/// `JᵀJ` has almost no curvature while the residuals' second derivatives do. The nominal
-/// fits now model that curvature (`fit_params`): on the concealed corpus's masked
-/// hysteresis case the nominal stage fell from 9772 simulations to 1317.
+/// about 1 % per restart) cost the same (33134 simulations against 34050). The crawl's cause,
+/// traced later (2026-11-26, the masked hysteresis case of seed 1): the nominal fit's two
+/// Prony terms had met at one retardation time, and each step flipped sign along the
+/// difference of the two log τ (components of ±0.01 to ±0.06, far inside `max_step`), a
+/// direction `JᵀJ` barely curves (its smallest scaled eigenvalues 1e-14 and 3e-5 of the
+/// largest) while the residuals' second derivatives do; the damping grown to stop the
+/// overshoot throttled every other direction. See `fit_params` for the curvature model tried.
 pub fn restarted<T>(
     mut best: T,
     max: usize,

@@ -5,8 +5,7 @@
 //! the solution (it *is* the inverse covariance), a bound on the step in log-parameters
 //! (a retardation time must not jump by orders of magnitude in one step), and nalgebra
 //! versions decoupled from ours. The algorithm is the textbook one with Marquardt's
-//! diagonal scaling, and optionally (`LmOptions::second_order`) NL2SOL's secant model of
-//! the curvature Gauss–Newton leaves out, for fits whose residual stays large.
+//! diagonal scaling.
 
 use nalgebra::{DMatrix, DVector};
 
@@ -27,9 +26,6 @@ pub struct LmOptions {
     /// Step size (relative to 1 + |p|) below which the fit has converged.
     pub step_tolerance: f64,
     pub damping: Damping,
-    /// Also model the residuals' own curvature, `S = Σ rᵢ∇²rᵢ`, by secant updates from the
-    /// Jacobians already computed (see [`solve_lazy`]); `false`: Gauss–Newton's `JᵀJ` alone.
-    pub second_order: bool,
 }
 
 /// Marquardt's damping schedule: λ starts at 1e-3, is divided by `down` after an accepted
@@ -65,7 +61,6 @@ impl Default for LmOptions {
             cost_tolerance_abs: 0.0,
             step_tolerance: 1e-11,
             damping: Damping::default(),
-            second_order: false,
         }
     }
 }
@@ -122,7 +117,6 @@ pub fn solve_lazy(
     let n = p.len();
     let mut converged = false;
     let mut iterations = 0;
-    let mut second = SecondOrder::new(n);
     while iterations < opts.max_iterations {
         iterations += 1;
         let g = jac.transpose() * &r;
@@ -133,12 +127,8 @@ pub fn solve_lazy(
         let d = opts.damping;
         let diag: Vec<f64> = (0..n).map(|i| jtj[(i, i)].max(d.diag_floor)).collect();
         let mut accepted = false;
-        let model = match &second {
-            SecondOrder { s, in_use: true } => &jtj + s,
-            _ => jtj.clone(),
-        };
         while lambda < d.max {
-            let mut a = model.clone();
+            let mut a = jtj.clone();
             for (i, d) in diag.iter().enumerate() {
                 a[(i, i)] += lambda * d;
             }
@@ -169,11 +159,7 @@ pub fn solve_lazy(
                     let small_step =
                         (0..n).all(|i| step[i].abs() <= opts.step_tolerance * (1.0 + p[i].abs()));
                     p = trial;
-                    let jac_new = jacobian(p.as_slice(), &r_new)?;
-                    if opts.second_order {
-                        second.update(&step, cost, new_cost, &g, &jtj, &jac, &jac_new, &r_new);
-                    }
-                    jac = jac_new;
+                    jac = jacobian(p.as_slice(), &r_new)?;
                     r = r_new;
                     jtj = jac.transpose() * &jac;
                     cost = new_cost;
@@ -207,75 +193,6 @@ pub fn solve_lazy(
     })
 }
 
-/// The residuals' own curvature `S = Σ rᵢ∇²rᵢ`, the part of the Hessian Gauss–Newton leaves
-/// out, estimated as NL2SOL does (Dennis, Gay & Welsch 1981): a secant update from the
-/// gradient change each accepted step brings, sized down where it overshoots, and used only
-/// while it predicted the last step's cost better than `JᵀJ` alone.
-///
-/// Why: where two terms of a model coincide (two Prony terms at one retardation time), `JᵀJ`
-/// has a direction with almost no curvature that the residuals' second derivatives do curve.
-/// Gauss–Newton's step runs along it, overshoots, and the damping grown to stop it throttles
-/// every other direction: a diagnosis's nominal fit gained 3 χ² units per iteration for
-/// hundreds of iterations, its steps flipping sign along the two retardation times' difference.
-struct SecondOrder {
-    s: DMatrix<f64>,
-    in_use: bool,
-}
-
-impl SecondOrder {
-    fn new(n: usize) -> Self {
-        Self {
-            s: DMatrix::zeros(n, n),
-            in_use: false,
-        }
-    }
-
-    /// After the accepted `step` from cost `old` to `new`: choose the model that predicted the
-    /// decrease better, then update `S` (`g`, `jtj`, `jac`: at the old point; `jac_new`,
-    /// `r_new`: at the new one).
-    #[allow(clippy::too_many_arguments)]
-    fn update(
-        &mut self,
-        step: &DVector<f64>,
-        old: f64,
-        new: f64,
-        g: &DVector<f64>,
-        jtj: &DMatrix<f64>,
-        jac: &DMatrix<f64>,
-        jac_new: &DMatrix<f64>,
-        r_new: &DVector<f64>,
-    ) {
-        // Decreases of ½|r|² as each quadratic model predicted it, and as it was.
-        let gs = g.dot(step);
-        let gn = step.dot(&(jtj * step));
-        let curved = step.dot(&(&self.s * step));
-        let actual = 0.5 * (old - new);
-        let pred_gn = -(gs + 0.5 * gn);
-        let pred_aug = -(gs + 0.5 * (gn + curved));
-        self.in_use = (actual - pred_aug).abs() < (actual - pred_gn).abs();
-        let g_new = jac_new.transpose() * r_new;
-        let y = &g_new - g;
-        // The change of the gradient's Jacobian part with r held at the new point: what `S`
-        // must map the step onto.
-        let y_sharp = &g_new - jac.transpose() * r_new;
-        let ys = y.dot(step);
-        // The secant condition needs positive curvature along the step.
-        let least = 1e-12 * y.norm() * step.norm();
-        if !ys.is_finite() || !least.is_finite() || ys <= least {
-            return;
-        }
-        if curved != 0.0 {
-            self.s *= (step.dot(&y_sharp) / curved).abs().min(1.0);
-        }
-        let w = &y_sharp - &self.s * step;
-        let update = (&w * y.transpose() + &y * w.transpose()) / ys
-            - (&y * y.transpose()) * (w.dot(step) / (ys * ys));
-        if update.iter().all(|v| v.is_finite()) {
-            self.s += update;
-        }
-    }
-}
-
 /// Solves from every start and keeps the converged result of lowest cost. When none
 /// converged: the iteration count and cost of the last attempt, for the error message.
 pub fn best_of(
@@ -302,49 +219,6 @@ pub fn best_of(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// Dennis & Schnabel's large-residual example (10.2.5): `r = (x + 1, a·x² + x − 1)`, its
-    /// minimum at x = 0 with cost 2. There `S = −2a` against `JᵀJ = 2`, so Gauss–Newton closes
-    /// in only linearly, by a factor `a` per step; with the secant estimate of `S` the rate
-    /// is superlinear.
-    #[test]
-    fn second_order_model_ends_a_large_residual_crawl() {
-        let a = 0.9;
-        let solve = |second_order: bool| {
-            solve_lazy(
-                &[1.0],
-                |p| {
-                    Some(DVector::from_vec(vec![
-                        p[0] + 1.0,
-                        a * p[0] * p[0] + p[0] - 1.0,
-                    ]))
-                },
-                |p, _| Some(DMatrix::from_row_slice(2, 1, &[1.0, 2.0 * a * p[0] + 1.0])),
-                LmOptions {
-                    max_iterations: 25,
-                    cost_tolerance: 0.0,
-                    step_tolerance: 1e-14,
-                    second_order,
-                    ..Default::default()
-                },
-            )
-            .expect("the start evaluates")
-        };
-        let gauss_newton = solve(false);
-        let curved = solve(true);
-        // Gauss–Newton is still at 0.006 after 25 steps; with the curvature modelled, x is
-        // at 1e-12 after 10.
-        assert!(
-            gauss_newton.params[0].abs() > 1e-3,
-            "{:?}",
-            gauss_newton.params
-        );
-        assert!(curved.params[0].abs() < 1e-8, "{:?}", curved.params);
-        assert!(curved.iterations < 25);
-        assert!((curved.cost - 2.0).abs() < 1e-12);
-        // The Gauss–Newton matrix returned is still JᵀJ (the inverse covariance), not JᵀJ + S.
-        assert!((curved.jtj[(0, 0)] - 2.0).abs() < 1e-6);
-    }
 
     /// The lazy entry point reaches the same minimum and asks for the Jacobian only at the
     /// start and at accepted points: fewer times than for residuals, since Rosenbrock's
