@@ -188,7 +188,7 @@ pub fn fit_params(
     // seed 1 from 617 s to 442 s and its masked hysteresis case from 44.3 s to 28.9 s, but two
     // of seed 1's pairs lost their second effect, and the independent simulator's set fell
     // from 21/28 to 20/28. With refits counting an updated step as half an iteration, the
-    // chosen model reached the floor on 47 of seeds 1–3's 53 effect cases (the test asks
+    // chosen model reached the floor on 47 of seeds 1–3's 53 effect cases (the test asks 48,
     // 90 %). In the nominal fit alone the set fell to 19/28. The diagnosis's ties and fragile
     // basins move with any change of the solver's path, and this one moved them the wrong way.
     //
@@ -198,10 +198,10 @@ pub fn fit_params(
     // the masked hysteresis case fell from 26567 simulations (49.7 s) to 13848 (24.7 s), its
     // nominal stage from 9772 to 1317. In every fit: seed 1 named 19/19 right (was 18/19),
     // the independent simulator's set stayed at 21/28 (rec31 gained, rec20 lost), but over
-    // seeds 1–3 the chosen model reached the floor on 45 of 53 effect cases (the test asks
-    // 48), and fits that did not crawl took a little longer (seed 1: 609 s against 579 s). In
-    // the nominal fit alone: seed 1 19/19 and 18/19 at the floor, but the set fell to 19/28
-    // (rec19, a tie; rec21, whose resonance refit started from two terms met exactly).
+    // seeds 1–3 the chosen model reached the floor on 45 of 53 effect cases (the test asks 48,
+    // 90 %), and fits that did not crawl took a little longer (seed 1: 609 s against 579 s).
+    // In the nominal fit alone: seed 1 19/19 and 18/19 at the floor, but the set fell to
+    // 19/28 (rec19, a tie; rec21, whose resonance refit started from two terms met exactly).
     let x0: Vec<f64> = free.iter().map(|&i| th0[i]).collect();
     let res = solve_lazy(&x0, residuals, jacobian_at, lm_opts)?;
     let (_, eval) = best.into_inner()?;
@@ -228,9 +228,10 @@ pub fn fit_params(
 /// traced later (2026-11-26, the masked hysteresis case of seed 1): the nominal fit's two
 /// Prony terms had met at one retardation time, and each step flipped sign along the
 /// difference of the two log τ (components of ±0.01 to ±0.06, far inside `max_step`), a
-/// direction `JᵀJ` barely curves (its smallest scaled eigenvalues 1e-14 and 3e-5 of the
-/// largest) while the residuals' second derivatives do; the damping grown to stop the
-/// overshoot throttled every other direction. See `fit_params` for the curvature model tried.
+/// direction `JᵀJ` barely curves (scaled to a unit diagonal, its two smallest eigenvalues
+/// were 1e-14 and 3e-5, its largest 4.9) while the residuals' second derivatives do; the
+/// damping grown to stop the overshoot throttled every other direction. See `fit_params`
+/// for the curvature model tried.
 pub fn restarted<T>(
     mut best: T,
     max: usize,
