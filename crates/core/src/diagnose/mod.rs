@@ -692,10 +692,25 @@ pub fn diagnose_with(
             NOMINAL_RESTARTS,
             |f| f.eval.chi2_train,
             |f| {
+                // Prony terms met at one retardation time are moved as one first
+                // (`fit::met_terms`), then let go.
+                let ties = fit::met_terms(&nominal, &f.theta);
+                let start = match ties.is_empty() {
+                    true => None,
+                    false => fit::fit_model_tied(
+                        problem,
+                        &nominal,
+                        std::slice::from_ref(&f.theta),
+                        &ties,
+                        nominal_opts,
+                        fan,
+                    ),
+                }
+                .map_or_else(|| f.theta.clone(), |t| t.theta);
                 fit_model(
                     problem,
                     &nominal,
-                    std::slice::from_ref(&f.theta),
+                    std::slice::from_ref(&start),
                     nominal_opts,
                     fan,
                 )
