@@ -292,17 +292,14 @@ const MET_LN_TAU: f64 = 0.1;
 /// 60-iteration restart) for 9772 simulations; moved as one term, the pair let the fit cross
 /// it in 63 (2026-11-26).
 pub fn met_terms(spec: &ModelSpec, th: &[f64]) -> Vec<(usize, usize)> {
-    let n = spec.terms;
-    let (j, tau) = (3, 3 + n);
+    let (j, tau) = (|i| spec.term_compliance(i), |i| spec.term_tau(i));
     let mut ties: Vec<(usize, usize)> = vec![];
-    for a in 0..n {
-        for b in a + 1..n {
+    for a in 0..spec.terms {
+        for b in a + 1..spec.terms {
             let follows = |i: usize| ties.iter().any(|&(_, f)| f == i);
-            if !follows(tau + a)
-                && !follows(tau + b)
-                && (th[tau + a] - th[tau + b]).abs() < MET_LN_TAU
+            if !follows(tau(a)) && !follows(tau(b)) && (th[tau(a)] - th[tau(b)]).abs() < MET_LN_TAU
             {
-                ties.extend([(j + a, j + b), (tau + a, tau + b)]);
+                ties.extend([(j(a), j(b)), (tau(a), tau(b))]);
             }
         }
     }

@@ -1579,7 +1579,12 @@ fn one_term_fewer(nominal: &ModelSpec, f: &Fitted) -> Vec<Vec<f64>> {
         return vec![];
     };
     let terms: Vec<(f64, f64)> = (0..n)
-        .map(|i| (f.theta[3 + i], f.theta[3 + n + i]))
+        .map(|i| {
+            (
+                f.theta[nominal.term_compliance(i)],
+                f.theta[nominal.term_tau(i)],
+            )
+        })
         .chain([(f.theta[o], f.theta[o + 1])])
         .collect();
     (0..n)
@@ -1592,8 +1597,8 @@ fn one_term_fewer(nominal: &ModelSpec, f: &Fitted) -> Vec<Vec<f64>> {
                 .collect();
             let mut th = f.theta[..nominal.n_nominal()].to_vec();
             for (i, (ln_j, ln_tau)) in kept.into_iter().enumerate() {
-                th[3 + i] = ln_j;
-                th[3 + n + i] = ln_tau;
+                th[nominal.term_compliance(i)] = ln_j;
+                th[nominal.term_tau(i)] = ln_tau;
             }
             th
         })
@@ -1886,7 +1891,8 @@ impl StartContext {
             / c_new.force_factor();
         let mut t = base.to_vec();
         if s.is_finite() && s > 0.0 {
-            for v in t[2..3 + spec.terms].iter_mut() {
+            // Every compliance: the instantaneous one (θ[2]) and each term's.
+            for v in t[2..spec.term_compliance(spec.terms)].iter_mut() {
                 *v += s.ln();
             }
         }

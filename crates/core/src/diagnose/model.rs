@@ -736,7 +736,18 @@ impl ModelSpec {
     /// `a1 = delay, Q = 1/√2` reproduces to second order, was left unabsorbed by the corpus's
     /// refit and absorbed by the diagnosis's nominal fit.
     pub fn actuator_lag(&self) -> usize {
-        3 + 2 * self.terms
+        self.term_tau(self.terms)
+    }
+
+    /// Index in θ of the nominal material's `i`-th term's ln J (the terms follow ln g, the
+    /// contact point and ln J_inst).
+    pub fn term_compliance(&self, i: usize) -> usize {
+        3 + i
+    }
+
+    /// Index in θ of the nominal material's `i`-th term's ln τ (after every term's ln J).
+    pub fn term_tau(&self, i: usize) -> usize {
+        3 + self.terms + i
     }
 
     /// Number of nominal nonlinear parameters: ln g, contact point, ln J_inst, (ln Ji, ln τi)×n,
@@ -910,11 +921,10 @@ impl Problem {
     /// The material of θ (nominal terms plus `missing_relaxation`'s when on).
     pub fn material(&self, spec: &ModelSpec, th: &[f64]) -> PronySeries {
         let j_inst = th[2].exp();
-        let n = spec.terms;
-        let mut terms: Vec<PronyTerm> = (0..n)
+        let mut terms: Vec<PronyTerm> = (0..spec.terms)
             .map(|i| PronyTerm {
-                j_per_pa: th[3 + i].exp(),
-                tau_s: th[3 + n + i].exp(),
+                j_per_pa: th[spec.term_compliance(i)].exp(),
+                tau_s: th[spec.term_tau(i)].exp(),
             })
             .collect();
         if let Some(o) = spec.offset_of(Effect::MissingRelaxation) {
