@@ -260,6 +260,14 @@ pub fn fit_params_tied(
 /// damping grown to stop the overshoot throttled every other direction. See `fit_params`
 /// for the curvature model tried, and [`met_terms`] for what the diagnosis's nominal fit does
 /// now: each restart first moves met terms as one.
+///
+/// A second crawl has no met terms (2026-11-26, `detector_nonlinearity/near_floor/seed2`, 35 s
+/// alone): the nominal fit creeps along the model's scaling symmetry — gain g, contact point ∝
+/// g, every compliance ∝ g^1.5, exact but for the lever's deflection — from the sidecar's 41
+/// nm/V (the truth) to 534 nm/V over 17800 simulations. Two prototypes, neither kept: fitting
+/// in the symmetry's coordinates (ln J − 1.5 ln g, zc/g) ran off to its unphysical end (1e5
+/// nm/V, χ²/sample 2.19 against 2.36); a prior holding ln g to the sidecar's (sd 0.1) saved
+/// only 8 % (17767 simulations, the refits still 12206) and changed no outcome.
 pub fn restarted<T>(
     mut best: T,
     max: usize,
