@@ -139,7 +139,7 @@ pub fn fit_params(
     fit_params_tied(problem, spec, th0, free, &[], opts, project_out, fan)
 }
 
-/// [`fit_params`] with `ties`: each `(lead, follow)` moves θ[follow] by what θ[lead] moves
+/// [`fit_params`] with `ties`: each `(lead, follow)` moves `θ[follow]` by what `θ[lead]` moves
 /// (`follow` is not in `free`), so tied parameters keep their differences ([`met_terms`]).
 #[allow(clippy::too_many_arguments)]
 pub fn fit_params_tied(
