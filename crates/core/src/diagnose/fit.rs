@@ -142,7 +142,7 @@ pub fn fit_params(
 /// [`fit_params`] with `ties`: each `(lead, follow)` moves `θ[follow]` by what `θ[lead]` moves
 /// (`follow` is not in `free`), so tied parameters keep their differences ([`met_terms`]).
 #[allow(clippy::too_many_arguments)]
-pub fn fit_params_tied(
+fn fit_params_tied(
     problem: &Problem,
     spec: &ModelSpec,
     th0: &[f64],
@@ -620,6 +620,46 @@ mod tests {
         assert_eq!(met_terms(&spec, &th), vec![(3, 4), (6, 7), (3, 5), (6, 8)]);
         let (spec, th) = nominal(&[1e-3, 1e-2, 1.05e-2]);
         assert_eq!(met_terms(&spec, &th), vec![(4, 5), (7, 8)]);
+    }
+
+    /// A tied fit moves each follower by exactly what its lead moves, and does not free it.
+    #[test]
+    fn a_tied_fit_keeps_the_followers_differences() {
+        let (problem, mut th0) = problem();
+        let spec = ModelSpec::nominal(MATERIAL_TERMS);
+        // Two terms met but not equal: the differences to keep are not zero.
+        let (j, tau) = (spec.term_compliance(1), spec.term_tau(1));
+        th0[j] = th0[spec.term_compliance(0)] + 0.2;
+        th0[tau] = th0[spec.term_tau(0)] + 0.05;
+        let ties = met_terms(&spec, &th0);
+        assert_eq!(
+            ties,
+            vec![(spec.term_compliance(0), j), (spec.term_tau(0), tau)]
+        );
+        let opts = FitOptions {
+            max_iterations: 4,
+            max_step: 1.0,
+        };
+        let f = fit_model_tied(&problem, &spec, &[th0.clone()], &ties, opts, &Serial).unwrap();
+        assert!(
+            !f.free.contains(&j) && !f.free.contains(&tau),
+            "{:?}",
+            f.free
+        );
+        for &(lead, follow) in &ties {
+            assert!(
+                (f.theta[lead] - th0[lead]).abs() > 1e-6,
+                "lead {lead} did not move"
+            );
+            let (was, is) = (th0[follow] - th0[lead], f.theta[follow] - f.theta[lead]);
+            assert!((is - was).abs() < 1e-12, "{follow}: {was} became {is}");
+        }
+        let start = problem.evaluate(&spec, &th0).unwrap().chi2_train;
+        assert!(
+            f.eval.chi2_train < start,
+            "{} !< {start}",
+            f.eval.chi2_train
+        );
     }
 
     #[test]

@@ -695,22 +695,17 @@ pub fn diagnose_with(
                 // Prony terms met at one retardation time are moved as one first
                 // (`fit::met_terms`), then let go.
                 let ties = fit::met_terms(&nominal, &f.theta);
-                let start = match ties.is_empty() {
-                    true => None,
-                    false => fit::fit_model_tied(
-                        problem,
-                        &nominal,
-                        std::slice::from_ref(&f.theta),
-                        &ties,
-                        nominal_opts,
-                        fan,
-                    ),
-                }
-                .map_or_else(|| f.theta.clone(), |t| t.theta);
+                let tied = (!ties.is_empty())
+                    .then(|| {
+                        let from = std::slice::from_ref(&f.theta);
+                        fit::fit_model_tied(problem, &nominal, from, &ties, nominal_opts, fan)
+                    })
+                    .flatten();
+                let start = tied.as_ref().map_or(&f.theta, |t| &t.theta);
                 fit_model(
                     problem,
                     &nominal,
-                    std::slice::from_ref(&start),
+                    std::slice::from_ref(start),
                     nominal_opts,
                     fan,
                 )
