@@ -421,9 +421,10 @@ pub enum BasePosition {
     /// real position. The piezo effects therefore stay candidates, each needing the same
     /// evidence as any other; a closed-loop stage simply gives them none.
     CommandedDisplacement,
-    /// The recording's `measured_height_nm`, the stage's own sensor, beside a `drive_nm`
-    /// (beside a drive in volts the drive stays the base). The piezo effects act between the
-    /// drive and that position and are not diagnosed from the deflection.
+    /// The recording's `measured_height_nm`, the stage's own sensor, beside a `drive_nm` it
+    /// parts from (beside a drive in volts, or a command it follows, the drive stays the base
+    /// and the sensor witnesses the piezo's path). The piezo effects act between the drive
+    /// and that position and are not diagnosed from the deflection.
     HeightSensor,
 }
 
@@ -460,6 +461,38 @@ impl Weighting {
             Weighting::Equal => "equal",
         }
     }
+}
+
+/// How far, as a share of the command's range, a height sensor must part from the
+/// commanded displacement beside it to be the diagnosis's base. The shared JPK file's sensor
+/// parts from its `height` by 47 % of the range (a force-feedback hold the command does not
+/// show); a closed-loop stage's sensor follows its command to within its lag and noise —
+/// under 1 % in an independent simulator's record (a 4 kHz first-order lag) — and a few per
+/// cent more with a piezo's own creep and hysteresis, which the sensor then witnesses.
+const SENSOR_PARTS_FROM_COMMAND: f64 = 0.1;
+
+/// Whether `sensor_nm` parts from `command_nm` by more than [`SENSOR_PARTS_FROM_COMMAND`] of
+/// the command's range, after their typical offset (a sensor reads from its own zero): the
+/// sensor is then where the stage really was. A sensor that is not finite everywhere, or is
+/// not the command's length, never is. A sensor that follows its command is the worse base:
+/// its noise would enter the model's input, pass in contact to the deflection and lift the
+/// residual over the floor measured on the free lever. A smooth candidate that filtered it
+/// (a 5 kHz mode) was then named over an independent simulator's channel delay.
+fn sensor_parts_from_command(command_nm: &[f64], sensor_nm: &[f64]) -> bool {
+    let n = command_nm.len();
+    if n == 0 || sensor_nm.len() != n || !sensor_nm.iter().all(|v| v.is_finite()) {
+        return false;
+    }
+    let gap: Vec<f64> = sensor_nm
+        .iter()
+        .zip(command_nm)
+        .map(|(h, c)| h - c)
+        .collect();
+    let offset = analysis::median(&mut gap.clone());
+    let widest = gap.iter().fold(0.0f64, |a, g| a.max((g - offset).abs()));
+    let lo = command_nm.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = command_nm.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    widest > SENSOR_PARTS_FROM_COMMAND * (hi - lo)
 }
 
 /// First contact: where the deflection leaves the free baseline for good, walked back to the
@@ -573,17 +606,18 @@ pub fn diagnose_with(
     let nominal = ModelSpec::nominal(terms);
     let fs = rec.sample_rate_hz;
     // Where the model's base position comes from, in one place. Behind a commanded
-    // displacement, the actuator's own position sensor, when the recording has one, is where
-    // the base really was: a commanded height and the stage's position can part by
-    // micrometres (the shared JPK file's commanded `height` runs backwards during its
-    // force-feedback hold). Deflection is then modelled against the sensor, so the piezo
-    // effects, which act between command and position, are out of this diagnosis's sight
-    // (see `base_position`). A drive in volts is what the piezo really received, so it stays
-    // the base beside a sensor: the piezo's creep and hysteresis then stay in sight, the
-    // sensor's own noise stays out of the model's input, and the sensor witnesses each
+    // displacement, the actuator's own position sensor, when the recording has one and it
+    // parts from the command (`sensor_parts_from_command`), is where the base really was: a
+    // commanded height and the stage's position can part by micrometres (the shared JPK
+    // file's commanded `height` runs backwards during its force-feedback hold). Deflection is
+    // then modelled against the sensor, so the piezo effects, which act between command and
+    // position, are out of this diagnosis's sight (see `base_position`). A drive in volts is
+    // what the piezo really received, and a command the sensor follows is as good, so either
+    // stays the base beside a sensor: the piezo's creep and hysteresis then stay in sight,
+    // the sensor's own noise stays out of the model's input, and the sensor witnesses each
     // model's path of the piezo instead (`witness`).
     let (drive, gain0, base_position) = match (&rec.drive, &rec.measured_height_nm) {
-        (Drive::Nanometres(_), Some(h)) if h.iter().all(|v| v.is_finite()) => {
+        (Drive::Nanometres(v), Some(h)) if sensor_parts_from_command(v, h) => {
             (h.clone(), 1.0, BasePosition::HeightSensor)
         }
         (Drive::Nanometres(v), _) => (v.clone(), 1.0, BasePosition::CommandedDisplacement),
@@ -1032,10 +1066,10 @@ pub fn diagnose_with(
         plain_forms,
         sims_screen,
     } = ex;
-    // The stage's height sensor beside a drive in volts reads the piezo's own path: each
+    // The stage's height sensor beside a drive it follows reads the piezo's own path: each
     // model's path is scored there too (`witness`).
     let witness = match (base_position, &rec.measured_height_nm) {
-        (BasePosition::Drive, Some(h)) => {
+        (BasePosition::Drive | BasePosition::CommandedDisplacement, Some(h)) => {
             HeightWitness::new(&drive, h, fs, &problem.train, &problem.held)
         }
         _ => None,
@@ -2143,7 +2177,8 @@ impl StartContext {
 mod tests {
     use super::corpus::{noise_free, nominal_twin, protocol_drive, simulate, simulate_with_truth};
     use super::{
-        diagnose, find_snap_in, split_train_held, BasePosition, DiagnoseOptions, Diagnosis, Verdict,
+        diagnose, find_snap_in, sensor_parts_from_command, split_train_held, BasePosition,
+        DiagnoseOptions, Diagnosis, Verdict,
     };
     use crate::recording::{Drive, Recording};
     use crate::twin::actuator::{BoucWen, Creep};
@@ -2653,6 +2688,45 @@ mod tests {
             "{depth:?}"
         );
         assert!(d.against_floor.after_at_floor, "{:?}", d.against_floor);
+    }
+
+    /// A sensor that follows its command (an offset, a lag, its noise, a piezo's few per cent)
+    /// leaves the command the base; one that parts by a fifth of the range is the base; one
+    /// that is not a whole finite column never is.
+    #[test]
+    fn a_sensor_is_the_base_only_where_it_parts_from_the_command() {
+        let n = 2000;
+        let command: Vec<f64> = (0..n)
+            .map(|k| {
+                let t = k as f64 / n as f64;
+                1000.0 * (1.0 - (2.0 * t - 1.0).abs()) + 20.0 * (60.0 * t).sin()
+            })
+            .collect();
+        // 250 nm below the command, 3 samples behind it, ±0.5 nm of noise, and a creep of
+        // 3 % of the range on the way down.
+        let following: Vec<f64> = (0..n)
+            .map(|k: usize| {
+                let noise = 0.5 * ((k * 7919 % 1000) as f64 / 500.0 - 1.0);
+                let creep = if k > n / 2 {
+                    30.0 * ((k - n / 2) as f64 / n as f64)
+                } else {
+                    0.0
+                };
+                command[k.saturating_sub(3)] - 250.0 + noise + creep
+            })
+            .collect();
+        assert!(!sensor_parts_from_command(&command, &following));
+        // A hold in which the stage moves 200 nm (a fifth of the range) the command does not.
+        let mut parting = following.clone();
+        for (k, h) in parting.iter_mut().enumerate().skip(1200).take(400) {
+            *h += 200.0 * ((k - 1200) as f64 / 400.0);
+        }
+        assert!(sensor_parts_from_command(&command, &parting));
+        let mut broken = parting.clone();
+        broken[10] = f64::NAN;
+        assert!(!sensor_parts_from_command(&command, &broken));
+        assert!(!sensor_parts_from_command(&command, &parting[..n - 1]));
+        assert!(!sensor_parts_from_command(&[], &[]));
     }
 
     /// A third held out, a held block starting at the anchor, and around each event every

@@ -218,7 +218,7 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
             BasePosition::CommandedDisplacement =>
                 "the commanded displacement (drive_nm); piezo creep and hysteresis stay candidates, as a stage that is not closed-loop still has them",
             BasePosition::HeightSensor =>
-                "the stage's height sensor (measured_height_nm); piezo effects, between drive and sensor, are not diagnosed",
+                "the stage's height sensor (measured_height_nm), which parts from the commanded drive_nm; piezo effects, between drive and sensor, are not diagnosed",
         },
         match d.weighting {
             Weighting::Whitened => "by the floor's noise model (whitened)",
