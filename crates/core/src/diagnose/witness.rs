@@ -33,7 +33,10 @@
 //! reference deflection ([`super::model::Problem::simulate_reference`]) is scored against the
 //! column with a free scale (the gain), a free in-contact step (a contact point a little off:
 //! a soft sample's first touch is hard to place), and a slow parabola of the detector's zero.
-//! As for the sensor, the noise is the nominal model's residual there.
+//! As for the sensor, the noise is the nominal model's residual there; where it is correlated
+//! off the surface (1/f noise), the χ² is counted by the independent samples
+//! (`Regression::correlation_inflation`). The sensor's noise is taken as white: it has no
+//! stretch where no model's path could misfit to measure it on.
 
 use nalgebra::{DMatrix, DVector};
 
@@ -49,6 +52,8 @@ struct Regression {
     nuisance: DMatrix<f64>,
     train: Vec<usize>,
     held: Vec<usize>,
+    /// The nominal path's [`Self::correlation_inflation`], set once that path is known.
+    inflation: f64,
 }
 
 impl Regression {
@@ -69,6 +74,7 @@ impl Regression {
             nuisance,
             train: train.to_vec(),
             held: held.to_vec(),
+            inflation: 1.0,
         })
     }
 
@@ -77,10 +83,10 @@ impl Regression {
         self.nuisance.ncols() + paths
     }
 
-    /// Residual sums of squares (train, held-out) of the target against `paths` (each with
-    /// a free coefficient) beside the nuisance columns. `None` for a path of the wrong length
-    /// or one that is not finite.
-    fn residual_sums(&self, paths: &[&[f64]]) -> Option<(f64, f64)> {
+    /// Residuals, on every sample, of the target against `paths` (each with a free
+    /// coefficient) beside the nuisance columns, fitted on the train samples. `None` for a
+    /// path of the wrong length or one that is not finite.
+    fn residuals(&self, paths: &[&[f64]]) -> Option<Vec<f64>> {
         let n = self.target.len();
         if paths
             .iter()
@@ -114,24 +120,52 @@ impl Regression {
             }
         }
         let coef = ata.svd(true, true).solve(&atb, 1e-10).ok()?;
-        let sum = |idx: &[usize]| -> f64 {
-            let mut r = vec![0.0; p];
-            idx.iter()
-                .map(|&i| {
-                    row(i, &mut r);
-                    let fit: f64 = (0..p).map(|a| r[a] * coef[a]).sum();
-                    (self.target[i] - fit).powi(2)
-                })
-                .sum()
-        };
-        let out = (sum(&self.train), sum(&self.held));
-        (out.0.is_finite() && out.1.is_finite()).then_some(out)
+        let out: Vec<f64> = (0..n)
+            .map(|i| {
+                row(i, &mut r);
+                let fit: f64 = (0..p).map(|a| r[a] * coef[a]).sum();
+                self.target[i] - fit
+            })
+            .collect();
+        out.iter().all(|v| v.is_finite()).then_some(out)
     }
 
-    /// χ² (train, held-out) of the fit with `paths`, in units of the noise scale `sigma`.
+    /// Residual sums of squares (train, held-out) of the fit with `paths` ([`Self::residuals`]).
+    fn residual_sums(&self, paths: &[&[f64]]) -> Option<(f64, f64)> {
+        let r = self.residuals(paths)?;
+        let sum = |idx: &[usize]| idx.iter().map(|&i| r[i] * r[i]).sum::<f64>();
+        Some((sum(&self.train), sum(&self.held)))
+    }
+
+    /// How many times its χ² overcounts the evidence where the channel's noise is
+    /// correlated: `(1 + ρ)/(1 − ρ)` for the lag-one correlation `ρ` of the residual of the
+    /// fit with `paths` over the samples `quiet` marks (1 for a white noise, or an
+    /// anticorrelated one). The quiet samples are those where no model's path can misfit
+    /// (the reference off its surface), so that `ρ` is the noise's and not a misfit's. A
+    /// channel whose noise wanders (1/f) has far fewer independent samples than it has
+    /// samples, and a slow model path then took up its wander at the full sample count: on an
+    /// independent simulator's null record with 1/f noise on every deflection channel, the
+    /// reference column alone gave a piezo creep an evidence of 190. The AR(1) variance
+    /// inflation is the first-order correction. `None` with fewer than 100 quiet pairs.
+    fn correlation_inflation(&self, paths: &[&[f64]], quiet: &[bool]) -> Option<f64> {
+        let r = self.residuals(paths)?;
+        let pairs = || {
+            (1..r.len()).filter(|&i| quiet.get(i - 1) == Some(&true) && quiet.get(i) == Some(&true))
+        };
+        if pairs().count() < 100 {
+            return None;
+        }
+        let power: f64 = pairs().map(|i| r[i] * r[i]).sum();
+        let lagged: f64 = pairs().map(|i| r[i - 1] * r[i]).sum();
+        let rho = (lagged / power).clamp(0.0, 0.99);
+        rho.is_finite().then(|| (1.0 + rho) / (1.0 - rho))
+    }
+
+    /// χ² (train, held-out) of the fit with `paths`, in units of the noise scale `sigma`,
+    /// divided by the correlation inflation ([`Self::correlation_inflation`]).
     fn chi2(&self, paths: &[&[f64]], sigma: f64) -> Option<(f64, f64)> {
         let (train, held) = self.residual_sums(paths)?;
-        let s2 = sigma * sigma;
+        let s2 = sigma * sigma * self.inflation;
         Some((train / s2, held / s2))
     }
 
@@ -228,9 +262,13 @@ impl ReferenceWitness {
         if n < 64 || !finite(reference_v) || !nominal.1.iter().any(|&c| c) {
             return None;
         }
-        let fit = Regression::new(reference_v, &slow_zero(n), train, held)?;
+        let mut fit = Regression::new(reference_v, &slow_zero(n), train, held)?;
         let touching = indicator(&nominal.1);
         let sigma_v = fit.noise_scale(&[&nominal.0, &touching])?;
+        let off_surface: Vec<bool> = nominal.1.iter().map(|&c| !c).collect();
+        fit.inflation = fit
+            .correlation_inflation(&[&nominal.0, &touching], &off_surface)
+            .unwrap_or(1.0);
         let nominal = fit.chi2(&[&nominal.0, &touching], sigma_v)?;
         Some(Self {
             fit,
@@ -451,6 +489,39 @@ mod tests {
         let mut bad = recorded.clone();
         bad[3] = f64::NAN;
         assert!(ReferenceWitness::new(&bad, &nominal, &train, &held).is_none());
+    }
+
+    /// A reference whose noise wanders (AR(1), ρ = 0.9, as 1/f noise does at the sample
+    /// scale) counts its χ² (1 + ρ)/(1 − ρ) = 19 times over, measured off the surface; a
+    /// white one is counted once.
+    #[test]
+    fn a_wandering_reference_noise_is_counted_by_its_independent_samples() {
+        let n = 12_000;
+        let nominal: ReferencePath = (0..n)
+            .map(|i| {
+                let z = 300.0 * i as f64 / n as f64 - 100.0;
+                ((z.max(0.0)) / 60.0, z > 0.0)
+            })
+            .unzip();
+        let (train, held): (Vec<usize>, Vec<usize>) = (0..n).partition(|i| (i / 300) % 3 != 2);
+        let inflation = |rho: f64| {
+            let mut rng = rand::rngs::StdRng::seed_from_u64(5);
+            let mut e = 0.0;
+            let recorded: Vec<f64> = nominal
+                .0
+                .iter()
+                .map(|d| {
+                    e = rho * e + 2e-3 * rng.sample::<f64, _>(StandardNormal);
+                    0.3 + d + e
+                })
+                .collect();
+            let w = ReferenceWitness::new(&recorded, &nominal, &train, &held).unwrap();
+            w.fit.inflation
+        };
+        let wandering = inflation(0.9);
+        assert!((14.0..26.0).contains(&wandering), "{wandering}");
+        let white = inflation(0.0);
+        assert!((1.0..1.1).contains(&white), "{white}");
     }
 
     #[test]
