@@ -328,7 +328,7 @@ pub fn fit_model(
     fit_model_tied(problem, spec, starts, &[], opts, fan)
 }
 
-/// [`fit_model`] with `ties` as in [`fit_params_tied`]; a follower is not free on its own.
+/// [`fit_model`] with `ties` as in `fit_params_tied`; a follower is not free on its own.
 /// The intervals it reports are those of the tied model.
 pub fn fit_model_tied(
     problem: &Problem,
