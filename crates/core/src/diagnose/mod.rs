@@ -2708,7 +2708,7 @@ mod tests {
             .map(|k: usize| {
                 let noise = 0.5 * ((k * 7919 % 1000) as f64 / 500.0 - 1.0);
                 let creep = if k > n / 2 {
-                    30.0 * ((k - n / 2) as f64 / n as f64)
+                    60.0 * ((k - n / 2) as f64 / n as f64)
                 } else {
                     0.0
                 };

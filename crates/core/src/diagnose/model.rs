@@ -442,9 +442,9 @@ pub(crate) fn nominal_actuator_mode(
 /// The drive's spectrum, for the nominal actuator's mode to act on the drive as the band-limited
 /// signal its samples describe (`DriveSpectrum::through`): the mode's response
 /// `1/(1 + s/(ω0·Q) + s²/ω0²)` applied line by line to the drive's spectrum. A smooth command
-/// between samples is what a drive is (a DAC's reconstruction filter, a stage controller's set-point interpolation, a simulator's
-/// continuous protocol); ramping it between samples instead (a first-order hold) loses 4 % of a 1
-/// kHz line's amplitude at 8 kHz behind a fifth of a sample's lag, which the fit could only mimic
+/// between samples is what a drive is (a DAC's reconstruction filter, a stage controller's
+/// set-point interpolation, a simulator's continuous protocol); ramping it between samples
+/// instead (a first-order hold) loses 4 % of a 1 kHz line's amplitude at 8 kHz behind a fifth of a sample's lag, which the fit could only mimic
 /// by raising the mode's Q to its bound, and the remainder was then named `hydrodynamic_drag` or
 /// `instrument_resonance` on null records of an independent simulator. The straight line between
 /// the first and last samples is taken out first and put back lagged (`a1·slope`), so the record's

@@ -492,8 +492,8 @@ mod tests {
     }
 
     /// A reference whose noise wanders (AR(1), ρ = 0.9, as 1/f noise does at the sample
-    /// scale) counts its χ² (1 + ρ)/(1 − ρ) = 19 times over, measured off the surface; a
-    /// white one is counted once.
+    /// scale) counts its χ² (1 + ρ)/(1 − ρ) = 19 times over, measured off the surface, and
+    /// its χ² is divided by that; a white one is counted once.
     #[test]
     fn a_wandering_reference_noise_is_counted_by_its_independent_samples() {
         let n = 12_000;
@@ -516,12 +516,16 @@ mod tests {
                 })
                 .collect();
             let w = ReferenceWitness::new(&recorded, &nominal, &train, &held).unwrap();
-            w.fit.inflation
+            // The nominal path leaves only the noise, whose scale it sets: its held-out χ² per
+            // sample is the inflation's inverse.
+            (w.fit.inflation, w.nominal.1 / held.len() as f64)
         };
-        let wandering = inflation(0.9);
+        let (wandering, per) = inflation(0.9);
         assert!((14.0..26.0).contains(&wandering), "{wandering}");
-        let white = inflation(0.0);
+        assert!((per * wandering - 1.0).abs() < 0.3, "{per} × {wandering}");
+        let (white, per) = inflation(0.0);
         assert!((1.0..1.1).contains(&white), "{white}");
+        assert!((per * white - 1.0).abs() < 0.1, "{per} × {white}");
     }
 
     #[test]
