@@ -959,15 +959,7 @@ pub fn diagnose_with(
                 .filter_map(|v| {
                     let mut st: Vec<Vec<f64>> =
                         st.iter().map(|t| ctx.extend(&problem, &v, t)).collect();
-                    if v.has(Effect::Adhesion) {
-                        st.extend(ctx.snap_start(&problem, &v, fan));
-                    }
-                    if v.has(Effect::TipGeometry) && v.tip == TipForm::PowerLaw {
-                        st.extend(ctx.power_law_screened.get().cloned().flatten());
-                    }
-                    if v.has(Effect::InstrumentResonance) && v.resonance == ResonanceForm::Peaking {
-                        st.extend(ctx.peaking_screened.get().cloned().flatten());
-                    }
+                    st.extend(ctx.form_starts(&problem, &v, fan));
                     st.dedup();
                     fit_model(&problem, &v, &st, refit_opts, fan)
                 })
@@ -1916,6 +1908,23 @@ impl StartContext {
             }
         }
         t
+    }
+
+    /// The starts of a form of a single-effect model `v` that only that form has, besides
+    /// the plain screening's θ extended to it (`extend`): an adhesion's snap start, and the
+    /// θ screened in the form itself (a power-law tip's, a peaking resonance's grid point).
+    fn form_starts(&self, problem: &Problem, v: &ModelSpec, fan: &dyn Fan) -> Vec<Vec<f64>> {
+        let mut st = vec![];
+        if v.has(Effect::Adhesion) {
+            st.extend(self.snap_start(problem, v, fan));
+        }
+        if v.has(Effect::TipGeometry) && v.tip == TipForm::PowerLaw {
+            st.extend(self.power_law_screened.get().cloned().flatten());
+        }
+        if v.has(Effect::InstrumentResonance) && v.resonance == ResonanceForm::Peaking {
+            st.extend(self.peaking_screened.get().cloned().flatten());
+        }
+        st
     }
 
     /// The nominal θ `base` with every compliance rescaled so that the tip of `spec` at `th`
