@@ -723,6 +723,15 @@ def case_table():
     add([], fs=10000, drive="nm", ref=True, tip="cone", exc="step")
     add([], fs=8000, drive="v", height=True, exc="multisine", pink=1.5)
     add([], fs=5000, drive="nm", ref=True, exc="step", pink=2.0)
+    # SIM_CASES=controls (added by viscoprobe, not by the author): five recordings with the
+    # drive in nm beside a height sensor, a make-up the set above has only with a delay.
+    if os.environ.get("SIM_CASES") == "controls":
+        C.clear()
+        add([], fs=16000, drive="nm", height=True, exc="multisine")
+        add([], fs=10000, drive="nm", height=True, exc="multisine")
+        add(["tip_geometry"], fs=16000, drive="nm", height=True, exc="multisine")
+        add(["missing_relaxation"], fs=16000, drive="nm", height=True, exc="multisine")
+        add(["channel_delay"], fs=10000, drive="nm", height=True, exc="multisine")
     return C
 
 
