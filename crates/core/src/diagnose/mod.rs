@@ -859,6 +859,22 @@ pub fn diagnose_with(
             + f.eval.chi2_held
             + model::n_params(&problem, &f.spec) as f64 * (n_tr + n_ho).ln()
     };
+    // The stage's height sensor beside a drive it follows reads the piezo's own path: each
+    // model's path is scored there too (`witness`).
+    let witness = match (base_position, &rec.measured_height_nm) {
+        (BasePosition::Drive | BasePosition::CommandedDisplacement, Some(h)) => {
+            HeightWitness::new(&drive, h, fs, &problem.train, &problem.held)
+        }
+        _ => None,
+    };
+    // Where that sensor lags the drive by less than the nominal fit's actuator does, the
+    // rest of the deflection's lag lies after the stage (`SensorLag`): `channel_delay` is
+    // then refitted from that split, and every model is judged on the sensor's lag too.
+    let lag_refuted = |nom: &Fitted| {
+        witness
+            .as_ref()
+            .and_then(|w| SensorLag::refuting(&problem, nom, w, penalty_of(Effect::ChannelDelay)))
+    };
     // Steps 2 to 4 (locate, screen, refit each candidate) start from the nominal fit; they
     // run again if the refits uncover a clearly better nominal fit (below).
     // `again`: a second round, from a better nominal fit, with the candidates that trade
@@ -922,7 +938,8 @@ pub fn diagnose_with(
             opts.full_refits,
             penalty_of,
         );
-        let to_refit: Vec<usize> = match again {
+        let sensor_lag = lag_refuted(nom);
+        let mut to_refit: Vec<usize> = match again {
             // The trading candidates, and those the screening against the better nominal fit
             // picks that were not refitted before: the first screening, against a nominal
             // fit stuck in a worse basin, ranked first the candidates that take up its misfit
@@ -935,6 +952,9 @@ pub fn diagnose_with(
                 .collect(),
             None => chosen,
         };
+        if sensor_lag.is_some() {
+            mark_for_refit(&screened, &mut to_refit, Effect::ChannelDelay);
+        }
         // The refits are independent too. Each form of a candidate (`ModelSpec::variants`) is
         // fitted; the one with the lower BIC stands for the candidate (`bic`).
         // The plain form of each candidate whose best form is another one: a pair may want the
@@ -967,6 +987,26 @@ pub fn diagnose_with(
                 .collect();
             let plain = fits.iter().find(|f| f.spec == spec).cloned();
             let mut best = fits.into_iter().min_by(|a, b| bic(a).total_cmp(&bic(b)))?;
+            // The deflection alone barely tells a delay from the lag it took over: the split
+            // the sensor reads is fitted as well, and the two are told apart on both channels.
+            if let (Effect::ChannelDelay, Some(s)) = (*e, &sensor_lag) {
+                let both = |f: &Fitted| {
+                    f.eval.chi2_train + s.chi2(&problem, f).map_or(f64::INFINITY, |c| c.0)
+                };
+                let start = [s.delay_start(nom, fs)];
+                if let Some(mut f) = fit_model(&problem, &spec, &start, refit_opts, fan) {
+                    if both(&f) < both(&best) {
+                        let lag_sd = nom.sd[nom.spec.actuator_lag()];
+                        if let (Some(sd), Some(o)) = (
+                            s.ln_delay_sd(&f, lag_sd, fs),
+                            spec.offset_of(Effect::ChannelDelay),
+                        ) {
+                            f.sd[o] = sd;
+                        }
+                        best = f;
+                    }
+                }
+            }
             scan_step_parameters(&problem, &mut best);
             let plain = plain.filter(|p| p.spec != best.spec);
             Some((*e, best, plain))
@@ -1081,14 +1121,6 @@ pub fn diagnose_with(
         plain_forms,
         sims_screen,
     } = ex;
-    // The stage's height sensor beside a drive it follows reads the piezo's own path: each
-    // model's path is scored there too (`witness`).
-    let witness = match (base_position, &rec.measured_height_nm) {
-        (BasePosition::Drive | BasePosition::CommandedDisplacement, Some(h)) => {
-            HeightWitness::new(&drive, h, fs, &problem.train, &problem.held)
-        }
-        _ => None,
-    };
     let sensor_chi2 = |f: &Fitted| -> Option<(f64, f64)> {
         let w = witness.as_ref()?;
         Some(
@@ -1109,16 +1141,23 @@ pub fn diagnose_with(
                 .unwrap_or(w.nominal),
         )
     };
+    let sensor_lag = lag_refuted(&nom);
     let judge = |base: &Fitted, cand: &Fitted| -> Judgement {
         let k = (model::n_params(&problem, &cand.spec) as f64
             - model::n_params(&problem, &base.spec) as f64)
             .max(1.0);
         let piezo =
             |f: &Fitted| f.spec.has(Effect::PiezoCreep) || f.spec.has(Effect::PiezoHysteresis);
-        let sensor = (piezo(base) || piezo(cand))
-            .then(|| sensor_chi2(base).zip(sensor_chi2(cand)))
-            .flatten()
-            .map(|(b, c)| (b.0 - c.0, b.1 - c.1));
+        // A sensor that refuted the nominal lag scores every model's whole stage path, lag
+        // included (creep and hysteresis too); otherwise only the piezo paths are scored,
+        // beside columns that absorb any lag.
+        let sensor = match &sensor_lag {
+            Some(s) => s.chi2(&problem, base).zip(s.chi2(&problem, cand)),
+            None => (piezo(base) || piezo(cand))
+                .then(|| sensor_chi2(base).zip(sensor_chi2(cand)))
+                .flatten(),
+        }
+        .map(|(b, c)| (b.0 - c.0, b.1 - c.1));
         let (s_train, s_held) = sensor.unwrap_or((0.0, 0.0));
         let reference = (base.spec.chain_differs() || cand.spec.chain_differs())
             .then(|| reference_chi2(base).zip(reference_chi2(cand)))
@@ -1444,6 +1483,144 @@ fn piezo_path(problem: &Problem, spec: &ModelSpec, th: &[f64]) -> Option<Vec<f64
     cfg.modes.clear();
     let mut actuator = Actuator::new(&cfg, problem.fs_hz);
     Some(problem.drive.iter().map(|&v| actuator.step(v)).collect())
+}
+
+/// The stage's path (nm) under model `spec` at `th` as its height sensor reads it: the drive
+/// through the nominal actuator's linear dynamics (its lag), then its gain, creep and
+/// hysteresis, without the candidates' modes (as [`piezo_path`]). A delay in the deflection's
+/// channel is not on this path: the sensor reads the stage before the detector.
+fn sensor_path(problem: &Problem, spec: &ModelSpec, th: &[f64]) -> Vec<f64> {
+    let mut cfg = problem.twin_config(spec, th).actuator;
+    cfg.modes.clear();
+    let mut actuator = Actuator::new(&cfg, problem.fs_hz);
+    let drive = problem.twin_drive(spec, th);
+    drive.iter().map(|&v| actuator.step(v)).collect()
+}
+
+/// Least skew, in samples, between the deflection's lag and the height sensor's that
+/// `SensorLag` takes for a delay in the deflection's channel. Two channels of one converter
+/// sampled together differ by far less: on the independent simulator's 14 records with a
+/// sensor and no delay, the sensor's lag was within 0.008 samples of the nominal fit's
+/// (0.003 shorter to 0.008 longer), on its three with a delay 0.14 to 0.19 samples shorter.
+const MIN_SENSOR_SKEW_SAMPLES: f64 = 0.05;
+
+/// The systematic part of the uncertainty of a lag measured on the height sensor against one
+/// measured on the deflection, in samples: the two channels are read through different
+/// models of the same stage (the sensor's noise, its own filter, the nominal actuator's
+/// form), and on the independent simulator's records without a delay the two lags differed
+/// by up to 0.008 samples, where the sensor's own lag was known to 0.0002–0.0007 samples.
+const SENSOR_SKEW_SD_SAMPLES: f64 = 0.01;
+
+/// A height sensor that refutes the nominal fit's actuator lag: it reads the stage lagging
+/// the drive by less than the deflection does, significantly and by more than
+/// [`MIN_SENSOR_SKEW_SAMPLES`]. The nominal actuator then took up a delay that lies between
+/// the stage and the recorded deflection (`channel_delay`), which the deflection alone can
+/// hardly tell from a lag: both turn the excited lines by nearly the same phase.
+struct SensorLag<'w> {
+    witness: &'w HeightWitness,
+    /// The lag (samples) that fits the sensor best, the nominal damping held.
+    lag_samples: f64,
+    /// Its standard deviation (samples), from the curvature of the sensor's χ² there.
+    lag_sd_samples: f64,
+    /// The nominal fit's lag (samples).
+    nominal_lag_samples: f64,
+    /// The sensor's noise scale for the χ² (nm²): the train mean square residual of the
+    /// nominal path, so that what the path misses widens it (as [`HeightWitness`]'s).
+    sigma2_nm2: f64,
+}
+
+impl<'w> SensorLag<'w> {
+    /// The sensor's lag against the nominal fit `nom`'s; `None` where the nominal actuator is
+    /// ideal, the sensor agrees with its lag or lags by more (a sensor's own filter).
+    fn refuting(
+        problem: &Problem,
+        nom: &Fitted,
+        witness: &'w HeightWitness,
+        penalty: f64,
+    ) -> Option<Self> {
+        let lag_at = nom.spec.actuator_lag();
+        let l0 = nom.theta[lag_at];
+        if l0.is_nan() || l0 <= MIN_SENSOR_SKEW_SAMPLES {
+            return None;
+        }
+        let rss_at = |lag: f64| {
+            let mut th = nom.theta.clone();
+            th[lag_at] = lag;
+            witness
+                .dynamics_rss(&sensor_path(problem, &nom.spec, &th))
+                .map_or(f64::INFINITY, |r| r.0)
+        };
+        // A grid over [0, 2·l0], then golden sections about its best point: the sensor's
+        // residual is smooth in the lag, each point one transform of the drive.
+        let grid: Vec<(f64, f64)> = (0..=16)
+            .map(|i| l0 * i as f64 / 8.0)
+            .map(|l| (l, rss_at(l)))
+            .collect();
+        let best = (0..grid.len()).min_by(|&a, &b| grid[a].1.total_cmp(&grid[b].1))?;
+        let (mut lo, mut hi) = (grid[best.saturating_sub(1)].0, grid[(best + 1).min(16)].0);
+        let phi = 0.5 * (5f64.sqrt() - 1.0);
+        for _ in 0..30 {
+            let (a, b) = (hi - phi * (hi - lo), lo + phi * (hi - lo));
+            if rss_at(a) < rss_at(b) {
+                hi = b;
+            } else {
+                lo = a;
+            }
+        }
+        let lag = 0.5 * (lo + hi);
+        let (rss_best, rss_nom) = (rss_at(lag), rss_at(l0));
+        let dof = witness.train_len().saturating_sub(4).max(1) as f64;
+        let sigma2 = rss_best / dof;
+        let refuted = (rss_nom - rss_best) / sigma2 > penalty;
+        // χ² = RSS/σ² ≈ χ²_min + c·(l − lag)²/σ²: the lag's variance is σ²/c.
+        let h = 0.01 * l0;
+        let c = (rss_at(lag + h) + rss_at((lag - h).max(0.0)) - 2.0 * rss_best) / (2.0 * h * h);
+        let lag_sd_samples = if c > 0.0 {
+            (sigma2 / c).sqrt()
+        } else {
+            f64::NAN
+        };
+        (rss_nom.is_finite() && refuted && l0 - lag > MIN_SENSOR_SKEW_SAMPLES).then(|| Self {
+            witness,
+            lag_samples: lag,
+            lag_sd_samples,
+            nominal_lag_samples: l0,
+            sigma2_nm2: rss_nom / dof,
+        })
+    }
+
+    /// The nominal fit with the sensor's lag and the rest of the deflection's lag handed to
+    /// a channel delay: the start of `channel_delay` (of spec `nominal` + it) that the
+    /// deflection alone would not pick among its look-alike basins.
+    fn delay_start(&self, nom: &Fitted, fs_hz: f64) -> Vec<f64> {
+        let mut t = nom.theta.clone();
+        t[nom.spec.actuator_lag()] = self.lag_samples;
+        t.push(((self.nominal_lag_samples - self.lag_samples) / fs_hz).ln());
+        t
+    }
+
+    /// The standard deviation of `f`'s ln delay (`f` fitted from [`Self::delay_start`]): the
+    /// deflection alone leaves the delay all but free along the lag it trades with, so its
+    /// own interval spans decades. Taken instead as the difference of two lags measured on
+    /// two channels, the deflection's (the nominal fit's, sd `nominal_lag_sd` samples) and
+    /// the sensor's, with independent errors, and the two channels' systematic skew
+    /// ([`SENSOR_SKEW_SD_SAMPLES`]).
+    fn ln_delay_sd(&self, f: &Fitted, nominal_lag_sd: f64, fs_hz: f64) -> Option<f64> {
+        let delay_samples = f.theta[f.spec.offset_of(Effect::ChannelDelay)?].exp() * fs_hz;
+        let sd = nominal_lag_sd
+            .hypot(self.lag_sd_samples)
+            .hypot(SENSOR_SKEW_SD_SAMPLES)
+            / delay_samples;
+        sd.is_finite().then_some(sd)
+    }
+
+    /// χ² (train, held-out) of the sensor against model `f`'s stage path.
+    fn chi2(&self, problem: &Problem, f: &Fitted) -> Option<(f64, f64)> {
+        let (train, held) = self
+            .witness
+            .dynamics_rss(&sensor_path(problem, &f.spec, &f.theta))?;
+        Some((train / self.sigma2_nm2, held / self.sigma2_nm2))
+    }
 }
 
 fn held_nrmse(problem: &Problem, f: &Fitted) -> f64 {
@@ -2349,6 +2526,68 @@ mod tests {
         assert!(
             fraction.ci95[0] < 1e-3 && 1e-3 < fraction.ci95[1],
             "{fraction:?}"
+        );
+    }
+
+    /// A delay of a fifth of a sample in the deflection's channel behind a stage that lags
+    /// half a sample itself: the nominal actuator's lag takes the delay up, and the
+    /// deflection alone names nothing. The stage's height sensor reads the stage's lag
+    /// alone, which refutes the nominal fit's and names the delay, with an interval about
+    /// the truth.
+    #[test]
+    fn a_height_sensor_names_a_delay_the_lag_took_up() {
+        use crate::twin::{actuator::ResonantMode, dynamics::InputHold};
+        use rand::{Rng, SeedableRng};
+        let fs = 5000.0;
+        let (truth_s, stage_lag_s, q) = (0.2 / fs, 0.5 / fs, 0.5);
+        let mut twin = nominal_twin(22);
+        twin.detector.delay_s = truth_s;
+        // The stage's lag in the nominal actuator's own form: the twin is driven with the
+        // drive it passed, the recording keeps the drive sent.
+        let (drive_v, _) = protocol_drive(fs);
+        let mode = ResonantMode {
+            freq_hz: 1.0 / (2.0 * std::f64::consts::PI * q * stage_lag_s),
+            q,
+            input: InputHold::Ramped,
+            peak_gain: None,
+        };
+        let stage_v = super::model::DriveSpectrum::new(&drive_v).through(&mode, fs);
+        let recorded = |sensor: bool| {
+            let mut rec = simulate(&twin, &stage_v, fs, None);
+            rec.drive = Drive::Volts(drive_v.clone());
+            if sensor {
+                let (_, truth) = simulate_with_truth(&twin, &stage_v, fs);
+                let mut rng = rand::rngs::StdRng::seed_from_u64(6);
+                let mut noise = || 0.05 * rng.sample::<f64, _>(rand_distr::StandardNormal);
+                rec.measured_height_nm = Some(truth.iter().map(|s| s.base_nm + noise()).collect());
+            }
+            rec
+        };
+        let opts = corpus_options();
+        let alone = diagnose(&recorded(false), &opts).unwrap();
+        assert_eq!(alone.verdict, Verdict::None, "{:?}", alone.effects[0]);
+        let lag = alone.before.actuator.lag_s;
+        let both = truth_s + stage_lag_s;
+        assert!((0.9..1.1).contains(&(lag / both)), "lag {lag} s");
+        let seen = diagnose(&recorded(true), &opts).unwrap();
+        let top = &seen.effects[0];
+        assert!(top.significant && top.id == "channel_delay", "{top:?}");
+        assert!(top.sensor_evidence.unwrap() > 100.0, "{top:?}");
+        let delay = top.params.iter().find(|p| p.name == "delay_s").unwrap();
+        assert!(
+            delay.ci95[0] < truth_s && truth_s < delay.ci95[1],
+            "{delay:?} vs {truth_s} s"
+        );
+        // The deflection's own lag is known to about 0.08 samples here, and the delay is that
+        // lag less the sensor's: an interval of about a factor of two each way, not the
+        // decades a fit of the deflection alone leaves it.
+        assert!((delay.value / truth_s - 1.0).abs() < 0.25, "{delay:?}");
+        assert!(delay.ci95[1] < 8.0 * delay.ci95[0], "{delay:?}");
+        let stage = seen.after.actuator.lag_s;
+        assert!(
+            (0.9..1.1).contains(&(stage / stage_lag_s)),
+            "{:?}",
+            seen.after
         );
     }
 

@@ -472,7 +472,7 @@ impl std::fmt::Debug for DriveSpectrum {
 }
 
 impl DriveSpectrum {
-    fn new(drive: &[f64]) -> Self {
+    pub(crate) fn new(drive: &[f64]) -> Self {
         use rustfft::{num_complex::Complex, FftPlanner};
         let n = drive.len();
         let first = drive.first().copied().unwrap_or(0.0);
@@ -496,7 +496,7 @@ impl DriveSpectrum {
     }
 
     /// The drive through `mode`, at `fs_hz`.
-    fn through(&self, mode: &ResonantMode, fs_hz: f64) -> Vec<f64> {
+    pub(crate) fn through(&self, mode: &ResonantMode, fs_hz: f64) -> Vec<f64> {
         use rustfft::num_complex::Complex;
         let n = self.bins.len();
         let w0 = 2.0 * std::f64::consts::PI * mode.freq_hz;
@@ -1138,7 +1138,7 @@ impl Problem {
     /// The drive as the twin of θ receives it. The nominal actuator's dynamics act on the
     /// drive as a band-limited signal (`DriveSpectrum`); the twin's own actuator has only the
     /// candidates' modes.
-    fn twin_drive(&self, spec: &ModelSpec, th: &[f64]) -> std::borrow::Cow<'_, [f64]> {
+    pub(crate) fn twin_drive(&self, spec: &ModelSpec, th: &[f64]) -> std::borrow::Cow<'_, [f64]> {
         match self.actuator_mode(spec, th) {
             Some(mode) => {
                 let spectrum = self

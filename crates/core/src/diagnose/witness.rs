@@ -20,7 +20,10 @@
 //! catalog: the sensor's own scale and zero, a slow parabola of its own drift (capacitive
 //! sensors warm too), and the first two derivatives of the drive for the actuator's linear
 //! dynamics. Its noise is the residual of the nominal path, so structure the witness does
-//! not model only widens the scale and weakens its evidence.
+//! not model only widens the scale and weakens its evidence. Those derivative columns absorb
+//! any lag; [`HeightWitness::dynamics_rss`] scores a path that carries the actuator's lag
+//! itself without them, for where the sensor's lag says something the deflection cannot
+//! (a delay after the stage: `SensorLag` in the diagnosis).
 
 //!
 //! [`ReferenceWitness`]: a `reference_deflection_v` column, the same drive on a hard reference
@@ -190,6 +193,10 @@ impl Regression {
 #[derive(Debug, Clone)]
 pub struct HeightWitness {
     fit: Regression,
+    /// The sensor against a path that carries the actuator's linear dynamics itself: its
+    /// scale and slow zero only, no derivative columns to absorb a lag
+    /// ([`Self::dynamics_rss`]).
+    dynamics: Regression,
     /// The sensor's noise, nm: the RMS residual of the nominal (linear) path on the train
     /// samples.
     pub sigma_nm: f64,
@@ -214,15 +221,30 @@ impl HeightWitness {
         let d1 = central_difference(drive_v, fs_hz);
         let d2 = central_difference(&d1, fs_hz);
         let mut cols = slow_zero(n).to_vec();
+        let dynamics = Regression::new(sensor_nm, &cols, train, held)?;
         cols.extend([d1, d2]);
         let fit = Regression::new(sensor_nm, &cols, train, held)?;
         let sigma_nm = fit.noise_scale(&[drive_v])?;
         let nominal = fit.chi2(&[drive_v], sigma_nm)?;
         Some(Self {
             fit,
+            dynamics,
             sigma_nm,
             nominal,
         })
+    }
+
+    /// Residual sums of squares (train, held-out; nm²) of the sensor against `path_nm`, a
+    /// path through the model's own actuator dynamics, with a free scale and slow zero but
+    /// no derivative columns: what the model says of the actuator's lag shows here. `None`
+    /// for a path of the wrong length or one that is not finite.
+    pub fn dynamics_rss(&self, path_nm: &[f64]) -> Option<(f64, f64)> {
+        self.dynamics.residual_sums(&[path_nm])
+    }
+
+    /// Train samples the sensor is fitted on.
+    pub fn train_len(&self) -> usize {
+        self.dynamics.train.len()
     }
 
     /// χ² (train, held-out) of the sensor against `path_nm` with a free scale, beside the
