@@ -338,7 +338,7 @@ pub fn fit_model_tied(
     opts: FitOptions,
     fan: &dyn Fan,
 ) -> Option<Fitted> {
-    fit_model_freeing(problem, spec, starts, ties, false, opts, fan)
+    fit_model_freeing(problem, spec, starts, ties, &[], false, opts, fan)
 }
 
 /// [`fit_model`] from the one `start`, with the actuator's damping free even where the
@@ -354,16 +354,33 @@ pub fn fit_model_damping_free(
     fan: &dyn Fan,
 ) -> Option<Fitted> {
     let starts = [start.to_vec()];
-    fit_model_freeing(problem, spec, &starts, &[], true, opts, fan)
+    fit_model_freeing(problem, spec, &starts, &[], &[], true, opts, fan)
+}
+
+/// [`fit_model`] from the one `start` with the parameters `held` held there (their standard
+/// deviations 0, for the caller to give): for parameters measured on another channel than
+/// the deflection (a creep the height sensor reads).
+pub fn fit_model_holding(
+    problem: &Problem,
+    spec: &ModelSpec,
+    start: &[f64],
+    held: &[usize],
+    opts: FitOptions,
+    fan: &dyn Fan,
+) -> Option<Fitted> {
+    let starts = [start.to_vec()];
+    fit_model_freeing(problem, spec, &starts, &[], held, false, opts, fan)
 }
 
 /// [`fit_model_tied`], the damping also freed where `damping_free` and the model frees the
-/// actuator's dynamics at all.
+/// actuator's dynamics at all, and the parameters `held` held.
+#[allow(clippy::too_many_arguments)]
 fn fit_model_freeing(
     problem: &Problem,
     spec: &ModelSpec,
     starts: &[Vec<f64>],
     ties: &[(usize, usize)],
+    held: &[usize],
     damping_free: bool,
     opts: FitOptions,
     fan: &dyn Fan,
@@ -374,7 +391,7 @@ fn fit_model_freeing(
             .filter(|&i| {
                 (damping_free && !hold && i == lag + 1) || frees_parameter(i, lag, start, hold)
             })
-            .filter(|&i| ties.iter().all(|&(_, f)| f != i))
+            .filter(|&i| ties.iter().all(|&(_, f)| f != i) && !held.contains(&i))
             .collect()
     };
     // The starts are independent fits: a fan may run them side by side.

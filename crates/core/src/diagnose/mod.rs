@@ -60,7 +60,7 @@ use noise::NoiseModel;
 use serde::Serialize;
 use std::sync::OnceLock;
 use thiserror::Error;
-use witness::{HeightWitness, ReferenceWitness};
+use witness::{HeightWitness, ReferenceWitness, SensorCreep};
 
 /// The catalog of physics a nominal twin may have left out, by their exact report ids.
 pub const CATALOG: [&str; 12] = [
@@ -955,6 +955,14 @@ pub fn diagnose_with(
         if sensor_lag.is_some() {
             mark_for_refit(&screened, &mut to_refit, Effect::ChannelDelay);
         }
+        // A sensor reads the piezo's path directly, which the deflection's screening cannot
+        // weigh: the piezo candidates are refitted whatever it said, and judged on both
+        // channels (in the first round; a second round's nominal fit leaves the piezo be).
+        if witness.is_some() && again.is_none() {
+            for e in [Effect::PiezoCreep, Effect::PiezoHysteresis] {
+                mark_for_refit(&screened, &mut to_refit, e);
+            }
+        }
         // The refits are independent too. Each form of a candidate (`ModelSpec::variants`) is
         // fitted; the one with the lower BIC stands for the candidate (`bic`).
         // The plain form of each candidate whose best form is another one: a pair may want the
@@ -1003,6 +1011,30 @@ pub fn diagnose_with(
                         ) {
                             f.sd[o] = sd;
                         }
+                        best = f;
+                    }
+                }
+            }
+            // A creep the deflection barely shows strays in its fit (it trades with the gain
+            // and the material), and the sensor then refutes it. The creep the sensor reads is
+            // taken as measured there, the rest refitted to the deflection with it held, and
+            // the two fits are told apart on both channels.
+            if let (Effect::PiezoCreep, Some(w)) = (*e, &witness) {
+                let both = |f: &Fitted| {
+                    let sensor = piezo_path(&problem, &f.spec, &f.theta).and_then(|p| w.chi2(&p));
+                    f.eval.chi2_train + sensor.map_or(f64::INFINITY, |c| c.0)
+                };
+                let o = spec.offset_of(Effect::PiezoCreep).unwrap_or(0);
+                let held = [o, o + 1];
+                let fitted = sensor_creep_start(&problem, nom, w).and_then(|(t, creep)| {
+                    let mut f =
+                        fit::fit_model_holding(&problem, &spec, &t, &held, refit_opts, fan)?;
+                    f.sd[o] = creep.ln_fraction_sd;
+                    f.sd[o + 1] = creep.ln_tau_sd;
+                    Some(f)
+                });
+                if let Some(f) = fitted {
+                    if both(&f) < both(&best) {
                         best = f;
                     }
                 }
@@ -1483,6 +1515,25 @@ fn piezo_path(problem: &Problem, spec: &ModelSpec, th: &[f64]) -> Option<Vec<f64
     cfg.modes.clear();
     let mut actuator = Actuator::new(&cfg, problem.fs_hz);
     Some(problem.drive.iter().map(|&v| actuator.step(v)).collect())
+}
+
+/// The nominal fit `nom` with the single-term creep the height sensor `witness` reads
+/// ([`HeightWitness::creep_fit`], time constants from two samples to the record's length in
+/// 40 steps): a start of `piezo_creep` (nominal + it).
+fn sensor_creep_start(
+    problem: &Problem,
+    nom: &Fitted,
+    witness: &HeightWitness,
+) -> Option<(Vec<f64>, SensorCreep)> {
+    let fs = problem.fs_hz;
+    let (lo, hi) = ((2.0 / fs).ln(), (problem.drive.len() as f64 / fs).ln());
+    let taus: Vec<f64> = (0..40)
+        .map(|k| (lo + (hi - lo) * k as f64 / 39.0).exp())
+        .collect();
+    let creep = witness.creep_fit(&problem.drive, fs, &taus)?;
+    let mut t = nom.theta.clone();
+    t.extend([creep.fraction.ln(), creep.tau_s.ln()]);
+    Some((t, creep))
 }
 
 /// The stage's path (nm) under model `spec` at `th` as its height sensor reads it: the drive
@@ -2589,6 +2640,34 @@ mod tests {
             "{:?}",
             seen.after
         );
+    }
+
+    /// A creep a third the size of the one above: the deflection's screening passes it over
+    /// (it stays below its price there), but a sensor beside the drive has every piezo
+    /// candidate refitted, and the creep measured on the sensor is named (a hysteresis, fitted
+    /// to the deflection, takes up part of it there too, and loses).
+    #[test]
+    fn a_height_sensor_has_a_small_creep_refitted() {
+        let mut twin = nominal_twin(23);
+        twin.actuator.creep = Some(Creep {
+            fraction: 3e-4,
+            tau_s: 0.5,
+            decades: None,
+        });
+        let seen = diagnose(&with_height_sensor(&twin, Some(0.05)), &corpus_options()).unwrap();
+        let top = &seen.effects[0];
+        assert!(top.significant && top.id == "piezo_creep", "{top:?}");
+        assert!(top.sensor_evidence.unwrap() > 0.5 * top.evidence, "{top:?}");
+        // Measured on the sensor: the deflection alone put it at 5.1e-4 and 0.31 s, which
+        // the sensor refuted (its evidence there -88).
+        let param = |name: &str| top.params.iter().find(|p| p.name == name).unwrap();
+        let (fraction, tau) = (param("fraction"), param("tau_s"));
+        assert!(
+            fraction.ci95[0] < 3e-4 && 3e-4 < fraction.ci95[1],
+            "{fraction:?}"
+        );
+        assert!(fraction.ci95[1] < 2.0 * fraction.ci95[0], "{fraction:?}");
+        assert!(tau.ci95[0] < 0.5 && 0.5 < tau.ci95[1], "{tau:?}");
     }
 
     /// A surface drift under the same sensor: the sensor reads the piezo, not the sample, so

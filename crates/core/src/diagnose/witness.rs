@@ -9,12 +9,15 @@
 //! drift look alike (both bend the in-contact deflection along a settling curve); the sensor
 //! tells them apart at once.
 //!
-//! The witness does not fit anything of its own about the piezo. Every model the diagnosis
-//! fits to the deflection has a piezo path (the actuator of its twin: gain, creep and
-//! hysteresis at the fitted parameters); the witness scores that path against the sensor.
-//! The sensor's χ² is thus one more term of the same likelihood, evaluated at parameters
-//! the deflection chose: a creep fitted to what was really a drift puts a creep into the
-//! sensor's path that the sensor never saw, and loses there.
+//! The witness judges without fitting. Every model the diagnosis fits to the deflection has
+//! a piezo path (the actuator of its twin: gain, creep and hysteresis at the fitted
+//! parameters); the witness scores that path against the sensor. The sensor's χ² is thus
+//! one more term of the same likelihood, evaluated at parameters the deflection chose: a
+//! creep fitted to what was really a drift puts a creep into the sensor's path that the
+//! sensor never saw, and loses there. One measurement is the sensor's own: a creep the
+//! deflection barely shows strays in its fit there, so [`HeightWitness::creep_fit`] measures
+//! it on the sensor for the diagnosis to hold while it refits the rest (a second model,
+//! judged like the first).
 //!
 //! Beside the path, the regression has free nuisance terms that say nothing about the
 //! catalog: the sensor's own scale and zero, a slow parabola of its own drift (capacitive
@@ -41,6 +44,7 @@
 //! (`Regression::correlation_inflation`). The sensor's noise is taken as white: it has no
 //! stretch where no model's path could misfit to measure it on.
 
+use crate::twin::dynamics::FirstOrder;
 use nalgebra::{DMatrix, DVector};
 
 /// Columns of the height witness's regression besides the path: zero, t, t², v̇, v̈.
@@ -90,6 +94,11 @@ impl Regression {
     /// coefficient) beside the nuisance columns, fitted on the train samples. `None` for a
     /// path of the wrong length or one that is not finite.
     fn residuals(&self, paths: &[&[f64]]) -> Option<Vec<f64>> {
+        self.fit(paths).map(|f| f.residuals)
+    }
+
+    /// [`Self::residuals`], with the coefficients of `paths` and their errors.
+    fn fit(&self, paths: &[&[f64]]) -> Option<Solved> {
         let n = self.target.len();
         if paths
             .iter()
@@ -122,7 +131,9 @@ impl Regression {
                 }
             }
         }
-        let coef = ata.svd(true, true).solve(&atb, 1e-10).ok()?;
+        let svd = ata.svd(true, true);
+        let coef = svd.solve(&atb, 1e-10).ok()?;
+        let inverse = svd.pseudo_inverse(1e-10).ok()?;
         let out: Vec<f64> = (0..n)
             .map(|i| {
                 row(i, &mut r);
@@ -130,7 +141,15 @@ impl Regression {
                 self.target[i] - fit
             })
             .collect();
-        out.iter().all(|v| v.is_finite()).then_some(out)
+        let path_coefs = (0..paths.len()).map(|k| coef[k] * scales[k]).collect();
+        let path_sd_per_sigma = (0..paths.len())
+            .map(|k| inverse[(k, k)].max(0.0).sqrt() * scales[k])
+            .collect();
+        out.iter().all(|v| v.is_finite()).then_some(Solved {
+            path_coefs,
+            path_sd_per_sigma,
+            residuals: out,
+        })
     }
 
     /// Residual sums of squares (train, held-out) of the fit with `paths` ([`Self::residuals`]).
@@ -189,6 +208,27 @@ impl Regression {
     }
 }
 
+/// A single-term creep measured on the height sensor ([`HeightWitness::creep_fit`]).
+#[derive(Debug, Clone, Copy)]
+pub struct SensorCreep {
+    pub fraction: f64,
+    pub tau_s: f64,
+    /// Standard deviations of ln fraction and ln τ (NaN where the sensor does not bound
+    /// them: a best τ at the end of the grid).
+    pub ln_fraction_sd: f64,
+    pub ln_tau_sd: f64,
+}
+
+/// A [`Regression`]'s fit.
+struct Solved {
+    /// The coefficient of each path as given (not scaled).
+    path_coefs: Vec<f64>,
+    /// Their standard deviations for a noise of unit variance.
+    path_sd_per_sigma: Vec<f64>,
+    /// Residuals on every sample.
+    residuals: Vec<f64>,
+}
+
 /// The sensor, its nuisance columns and its noise scale.
 #[derive(Debug, Clone)]
 pub struct HeightWitness {
@@ -240,6 +280,70 @@ impl HeightWitness {
     /// for a path of the wrong length or one that is not finite.
     pub fn dynamics_rss(&self, path_nm: &[f64]) -> Option<(f64, f64)> {
         self.dynamics.residual_sums(&[path_nm])
+    }
+
+    /// The single-term creep that fits the sensor best on `path_nm`, a piezo path without
+    /// creep (the drive through the nominal gain): `(fraction, tau_s)`, from `taus_s`. A
+    /// creep adds `fraction·(path through a first-order lag of τ)`, linear in the fraction:
+    /// for each τ the fraction is the ratio of the two paths' coefficients in one regression
+    /// (beside the nuisance columns), and the τ with the least train residual is taken.
+    /// Not a judgement (that is [`Self::chi2`] on a model the deflection fitted): where the
+    /// deflection barely shows a creep, its own fit strays, and this is where its refit can
+    /// start instead. `None` without a positive fraction.
+    pub fn creep_fit(&self, path_nm: &[f64], fs_hz: f64, taus_s: &[f64]) -> Option<SensorCreep> {
+        let first = *path_nm.first()?;
+        let creep_path = |tau: f64| -> Vec<f64> {
+            let mut lag = FirstOrder::new(tau, fs_hz);
+            lag.settle(first);
+            path_nm.iter().map(|&x| lag.step(x)).collect()
+        };
+        let solve = |tau: f64| self.fit.fit(&[path_nm, &creep_path(tau)]);
+        let fits: Vec<Option<(f64, f64)>> = taus_s
+            .iter()
+            .map(|&tau| {
+                let f = solve(tau)?;
+                let r = &f.residuals;
+                let rss: f64 = self.fit.train.iter().map(|&i| r[i] * r[i]).sum();
+                Some((f.path_coefs[1] / f.path_coefs[0], rss))
+            })
+            .collect();
+        let k = (0..fits.len())
+            .filter(|&k| fits[k].is_some_and(|(f, _)| f > 0.0 && f.is_finite()))
+            .min_by(|&a, &b| {
+                let rss = |k: usize| fits[k].map_or(f64::INFINITY, |x| x.1);
+                rss(a).total_cmp(&rss(b))
+            })?;
+        let (fraction, rss) = fits[k]?;
+        let dof = self
+            .fit
+            .train
+            .len()
+            .saturating_sub(self.fit.parameters(2))
+            .max(1) as f64;
+        let sigma2 = rss / dof;
+        // ln τ: the curvature of the profile residual (the fraction refitted at each τ) about
+        // the best grid point, χ² = RSS/σ² rising by one at one standard deviation.
+        let ln_tau_sd = match (
+            k.checked_sub(1).and_then(|j| fits[j]),
+            fits.get(k + 1).copied(),
+        ) {
+            (Some((_, below)), Some(Some((_, above)))) => {
+                let h = (taus_s[k + 1] / taus_s[k]).ln();
+                let curvature = (below + above - 2.0 * rss) / (h * h);
+                (2.0 * sigma2 / curvature).sqrt()
+            }
+            _ => f64::NAN,
+        };
+        // ln fraction: the creep column's coefficient error at that τ, the gain's neglected.
+        let ln_fraction_sd = solve(taus_s[k]).map_or(f64::NAN, |f| {
+            sigma2.sqrt() * f.path_sd_per_sigma[1] / (fraction * f.path_coefs[0]).abs()
+        });
+        Some(SensorCreep {
+            fraction,
+            tau_s: taus_s[k],
+            ln_fraction_sd,
+            ln_tau_sd,
+        })
     }
 
     /// Train samples the sensor is fitted on.
