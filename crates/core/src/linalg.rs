@@ -1,4 +1,4 @@
-//! Small dense linear-algebra helpers on top of nalgebra.
+//! Small dense linear-algebra helpers on top of nalgebra, and a golden-section line search.
 
 use nalgebra::DMatrix;
 
@@ -83,6 +83,42 @@ pub fn identified_inverse(m: &DMatrix<f64>) -> DMatrix<f64> {
         active.remove(worst);
     }
     out
+}
+
+/// Maximum of a concave (unimodal) function on `[lo, hi]` by golden-section search, each step
+/// one evaluation; the ends themselves are candidates too. The design's away and toward steps
+/// and the diagnosis's sensor lag search with it.
+pub fn golden_max(f: impl Fn(f64) -> f64, lo: f64, hi: f64) -> f64 {
+    let g = 0.5 * (5f64.sqrt() - 1.0);
+    let (mut a, mut b) = (lo, hi);
+    let mut c = b - g * (b - a);
+    let mut d = a + g * (b - a);
+    let (mut fc, mut fd) = (f(c), f(d));
+    for _ in 0..80 {
+        if fc >= fd {
+            b = d;
+            d = c;
+            fd = fc;
+            c = b - g * (b - a);
+            fc = f(c);
+        } else {
+            a = c;
+            c = d;
+            fc = fd;
+            d = a + g * (b - a);
+            fd = f(d);
+        }
+        if b - a <= 1e-13 * hi.max(1e-300) {
+            break;
+        }
+    }
+    let x = 0.5 * (a + b);
+    // The ends themselves (a maximum at the edge: a full drop step of the design's away move).
+    [lo, x, hi]
+        .map(|t| (t, f(t)))
+        .into_iter()
+        .reduce(|best, c| if c.1 > best.1 { c } else { best })
+        .map_or(x, |(t, _)| t)
 }
 
 #[cfg(test)]

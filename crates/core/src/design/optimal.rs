@@ -43,6 +43,7 @@
 
 use super::{DesignConfig, DesignError, DesignLine, MergeRule};
 use crate::fisher::{fisher_multisine, log_sensitivity, relative_crlb, Line, NoiseSpectrum};
+use crate::linalg::golden_max;
 use crate::prony::PronySeries;
 use nalgebra::DMatrix;
 use serde::Serialize;
@@ -573,40 +574,4 @@ impl Problem {
         flush(&mut cluster, &mut out);
         out
     }
-}
-
-/// Maximum of a concave function on `[lo, hi]` by golden-section search.
-fn golden_max(f: impl Fn(f64) -> f64, lo: f64, hi: f64) -> f64 {
-    let g = 0.5 * (5f64.sqrt() - 1.0);
-    let (mut a, mut b) = (lo, hi);
-    let mut c = b - g * (b - a);
-    let mut d = a + g * (b - a);
-    let (mut fc, mut fd) = (f(c), f(d));
-    for _ in 0..80 {
-        if fc >= fd {
-            b = d;
-            d = c;
-            fd = fc;
-            c = b - g * (b - a);
-            fc = f(c);
-        } else {
-            a = c;
-            c = d;
-            fc = fd;
-            d = a + g * (b - a);
-            fd = f(d);
-        }
-        if b - a <= 1e-13 * hi.max(1e-300) {
-            break;
-        }
-    }
-    let x = 0.5 * (a + b);
-    // the ends themselves (e.g. a full drop step of an away move)
-    [lo, x, hi]
-        .into_iter()
-        .fold(
-            (lo, f(lo)),
-            |best, t| if f(t) > best.1 { (t, f(t)) } else { best },
-        )
-        .0
 }

@@ -60,7 +60,7 @@ use noise::NoiseModel;
 use serde::Serialize;
 use std::sync::OnceLock;
 use thiserror::Error;
-use witness::{HeightWitness, ReferenceWitness, SensorCreep};
+use witness::{HeightWitness, ReferenceWitness};
 
 /// The catalog of physics a nominal twin may have left out, by their exact report ids.
 pub const CATALOG: [&str; 12] = [
@@ -994,51 +994,29 @@ pub fn diagnose_with(
                 })
                 .collect();
             let plain = fits.iter().find(|f| f.spec == spec).cloned();
-            let mut best = fits.into_iter().min_by(|a, b| bic(a).total_cmp(&bic(b)))?;
-            // The deflection alone barely tells a delay from the lag it took over: the split
-            // the sensor reads is fitted as well, and the two are told apart on both channels.
-            if let (Effect::ChannelDelay, Some(s)) = (*e, &sensor_lag) {
-                let both = |f: &Fitted| {
-                    f.eval.chi2_train + s.chi2(&problem, f).map_or(f64::INFINITY, |c| c.0)
-                };
-                let start = [s.delay_start(nom, fs)];
-                if let Some(mut f) = fit_model(&problem, &spec, &start, refit_opts, fan) {
-                    if both(&f) < both(&best) {
-                        let lag_sd = nom.sd[nom.spec.actuator_lag()];
-                        if let (Some(sd), Some(o)) = (
-                            s.ln_delay_sd(&f, lag_sd, fs),
-                            spec.offset_of(Effect::ChannelDelay),
-                        ) {
-                            f.sd[o] = sd;
-                        }
-                        best = f;
-                    }
+            let best = fits.into_iter().min_by(|a, b| bic(a).total_cmp(&bic(b)))?;
+            // The deflection alone barely tells a delay from the lag it took over, and a creep
+            // it barely shows strays in its fit (trading with the gain and the material) until
+            // the sensor refutes it. The sensor's own reading of each is fitted as well (the
+            // split of the lag; the creep, held), and of the two fits the one with the lower
+            // χ² over both channels stands.
+            let mut best = match (*e, &sensor_lag, &witness) {
+                (Effect::ChannelDelay, Some(s), _) => {
+                    let start = [s.delay_start(nom, fs)];
+                    let alt = fit_model(&problem, &spec, &start, refit_opts, fan)
+                        .map(|f| s.with_delay_sd(f, nom, fs));
+                    lower_on_both(best, alt, |f| s.chi2(&problem, f).map(|c| c.0))
                 }
-            }
-            // A creep the deflection barely shows strays in its fit (it trades with the gain
-            // and the material), and the sensor then refutes it. The creep the sensor reads is
-            // taken as measured there, the rest refitted to the deflection with it held, and
-            // the two fits are told apart on both channels.
-            if let (Effect::PiezoCreep, Some(w)) = (*e, &witness) {
-                let both = |f: &Fitted| {
-                    let sensor = piezo_path(&problem, &f.spec, &f.theta).and_then(|p| w.chi2(&p));
-                    f.eval.chi2_train + sensor.map_or(f64::INFINITY, |c| c.0)
-                };
-                let o = spec.offset_of(Effect::PiezoCreep).unwrap_or(0);
-                let held = [o, o + 1];
-                let fitted = sensor_creep_start(&problem, nom, w).and_then(|(t, creep)| {
-                    let mut f =
-                        fit::fit_model_holding(&problem, &spec, &t, &held, refit_opts, fan)?;
-                    f.sd[o] = creep.ln_fraction_sd;
-                    f.sd[o + 1] = creep.ln_tau_sd;
-                    Some(f)
-                });
-                if let Some(f) = fitted {
-                    if both(&f) < both(&best) {
-                        best = f;
-                    }
+                (Effect::PiezoCreep, _, Some(w)) => {
+                    let alt = sensor_creep_fit(&problem, nom, w, refit_opts, fan);
+                    lower_on_both(best, alt, |f| {
+                        piezo_path(&problem, &f.spec, &f.theta)
+                            .and_then(|p| w.chi2(&p))
+                            .map(|c| c.0)
+                    })
                 }
-            }
+                _ => best,
+            };
             scan_step_parameters(&problem, &mut best);
             let plain = plain.filter(|p| p.spec != best.spec);
             Some((*e, best, plain))
@@ -1511,29 +1489,57 @@ fn piezo_path(problem: &Problem, spec: &ModelSpec, th: &[f64]) -> Option<Vec<f64
     if !spec.has(Effect::PiezoCreep) && !spec.has(Effect::PiezoHysteresis) {
         return None;
     }
+    Some(stage_path(problem, spec, th, &problem.drive))
+}
+
+/// `drive` through the twin of `spec` at `th`'s actuator without its modes: gain, creep and
+/// hysteresis (nm).
+fn stage_path(problem: &Problem, spec: &ModelSpec, th: &[f64], drive: &[f64]) -> Vec<f64> {
     let mut cfg = problem.twin_config(spec, th).actuator;
     cfg.modes.clear();
     let mut actuator = Actuator::new(&cfg, problem.fs_hz);
-    Some(problem.drive.iter().map(|&v| actuator.step(v)).collect())
+    drive.iter().map(|&v| actuator.step(v)).collect()
 }
 
-/// The nominal fit `nom` with the single-term creep the height sensor `witness` reads
+/// `piezo_creep` (nominal + it) with the single-term creep the height sensor `witness` reads
 /// ([`HeightWitness::creep_fit`], time constants from two samples to the record's length in
-/// 40 steps): a start of `piezo_creep` (nominal + it).
-fn sensor_creep_start(
+/// 40 steps) held, and its intervals, from the nominal fit `nom`: the rest refitted to the
+/// deflection.
+fn sensor_creep_fit(
     problem: &Problem,
     nom: &Fitted,
     witness: &HeightWitness,
-) -> Option<(Vec<f64>, SensorCreep)> {
+    opts: FitOptions,
+    fan: &dyn Fan,
+) -> Option<Fitted> {
     let fs = problem.fs_hz;
     let (lo, hi) = ((2.0 / fs).ln(), (problem.drive.len() as f64 / fs).ln());
     let taus: Vec<f64> = (0..40)
         .map(|k| (lo + (hi - lo) * k as f64 / 39.0).exp())
         .collect();
     let creep = witness.creep_fit(&problem.drive, fs, &taus)?;
-    let mut t = nom.theta.clone();
-    t.extend([creep.fraction.ln(), creep.tau_s.ln()]);
-    Some((t, creep))
+    let spec = nom.spec.with(&[Effect::PiezoCreep]);
+    let o = spec.offset_of(Effect::PiezoCreep)?;
+    let mut start = nom.theta.clone();
+    start.extend([creep.fraction.ln(), creep.tau_s.ln()]);
+    let mut f = fit::fit_model_holding(problem, &spec, &start, &[o, o + 1], opts, fan)?;
+    f.sd[o] = creep.ln_fraction_sd;
+    f.sd[o + 1] = creep.ln_tau_sd;
+    Some(f)
+}
+
+/// `best`, or `alt` where it has the lower train χ² over the deflection and the height sensor
+/// (`sensor_train`; a model the sensor cannot score stands no chance).
+fn lower_on_both(
+    best: Fitted,
+    alt: Option<Fitted>,
+    sensor_train: impl Fn(&Fitted) -> Option<f64>,
+) -> Fitted {
+    let both = |f: &Fitted| f.eval.chi2_train + sensor_train(f).unwrap_or(f64::INFINITY);
+    match alt {
+        Some(a) if both(&a) < both(&best) => a,
+        _ => best,
+    }
 }
 
 /// The stage's path (nm) under model `spec` at `th` as its height sensor reads it: the drive
@@ -1541,11 +1547,7 @@ fn sensor_creep_start(
 /// hysteresis, without the candidates' modes (as [`piezo_path`]). A delay in the deflection's
 /// channel is not on this path: the sensor reads the stage before the detector.
 fn sensor_path(problem: &Problem, spec: &ModelSpec, th: &[f64]) -> Vec<f64> {
-    let mut cfg = problem.twin_config(spec, th).actuator;
-    cfg.modes.clear();
-    let mut actuator = Actuator::new(&cfg, problem.fs_hz);
-    let drive = problem.twin_drive(spec, th);
-    drive.iter().map(|&v| actuator.step(v)).collect()
+    stage_path(problem, spec, th, &problem.twin_drive(spec, th))
 }
 
 /// Least skew, in samples, between the deflection's lag and the height sensor's that
@@ -1608,19 +1610,10 @@ impl<'w> SensorLag<'w> {
             .map(|l| (l, rss_at(l)))
             .collect();
         let best = (0..grid.len()).min_by(|&a, &b| grid[a].1.total_cmp(&grid[b].1))?;
-        let (mut lo, mut hi) = (grid[best.saturating_sub(1)].0, grid[(best + 1).min(16)].0);
-        let phi = 0.5 * (5f64.sqrt() - 1.0);
-        for _ in 0..30 {
-            let (a, b) = (hi - phi * (hi - lo), lo + phi * (hi - lo));
-            if rss_at(a) < rss_at(b) {
-                hi = b;
-            } else {
-                lo = a;
-            }
-        }
-        let lag = 0.5 * (lo + hi);
+        let (lo, hi) = (grid[best.saturating_sub(1)].0, grid[(best + 1).min(16)].0);
+        let lag = crate::linalg::golden_max(|l| -rss_at(l), lo, hi);
         let (rss_best, rss_nom) = (rss_at(lag), rss_at(l0));
-        let dof = witness.train_len().saturating_sub(4).max(1) as f64;
+        let dof = witness.dynamics_dof();
         let sigma2 = rss_best / dof;
         let refuted = (rss_nom - rss_best) / sigma2 > penalty;
         // χ² = RSS/σ² ≈ χ²_min + c·(l − lag)²/σ²: the lag's variance is σ²/c.
@@ -1650,19 +1643,25 @@ impl<'w> SensorLag<'w> {
         t
     }
 
-    /// The standard deviation of `f`'s ln delay (`f` fitted from [`Self::delay_start`]): the
-    /// deflection alone leaves the delay all but free along the lag it trades with, so its
-    /// own interval spans decades. Taken instead as the difference of two lags measured on
-    /// two channels, the deflection's (the nominal fit's, sd `nominal_lag_sd` samples) and
-    /// the sensor's, with independent errors, and the two channels' systematic skew
-    /// ([`SENSOR_SKEW_SD_SAMPLES`]).
-    fn ln_delay_sd(&self, f: &Fitted, nominal_lag_sd: f64, fs_hz: f64) -> Option<f64> {
-        let delay_samples = f.theta[f.spec.offset_of(Effect::ChannelDelay)?].exp() * fs_hz;
-        let sd = nominal_lag_sd
+    /// `f` (fitted from [`Self::delay_start`]) with the standard deviation of its ln delay:
+    /// the deflection alone leaves the delay all but free along the lag it trades with, so
+    /// its own interval spans decades. Taken instead as the difference of two lags measured
+    /// on two channels, the deflection's (the nominal fit `nom`'s) and the sensor's, with
+    /// independent errors, and the two channels' systematic skew
+    /// ([`SENSOR_SKEW_SD_SAMPLES`]). Left as fitted where that is not finite.
+    fn with_delay_sd(&self, mut f: Fitted, nom: &Fitted, fs_hz: f64) -> Fitted {
+        let Some(o) = f.spec.offset_of(Effect::ChannelDelay) else {
+            return f;
+        };
+        let delay_samples = f.theta[o].exp() * fs_hz;
+        let sd = nom.sd[nom.spec.actuator_lag()]
             .hypot(self.lag_sd_samples)
             .hypot(SENSOR_SKEW_SD_SAMPLES)
             / delay_samples;
-        sd.is_finite().then_some(sd)
+        if sd.is_finite() {
+            f.sd[o] = sd;
+        }
+        f
     }
 
     /// χ² (train, held-out) of the sensor against model `f`'s stage path.
@@ -2531,12 +2530,27 @@ mod tests {
     /// `sensor_nm` is given, a height sensor reading the true base position with that much
     /// white noise (seeded).
     fn with_height_sensor(twin: &TwinConfig, sensor_nm: Option<f64>) -> Recording {
+        let (drive_v, _) = protocol_drive(SENSED_FS_HZ);
+        sensed(twin, &drive_v, &drive_v, sensor_nm)
+    }
+
+    const SENSED_FS_HZ: f64 = 5000.0;
+
+    /// The twin driven with `stage_v` at [`SENSED_FS_HZ`], recorded as driven with `sent_v`
+    /// (the same drive, unless the stage saw it through dynamics the twin does not have),
+    /// with a height sensor of noise `sensor_nm` reading the twin's stage where asked.
+    fn sensed(
+        twin: &TwinConfig,
+        stage_v: &[f64],
+        sent_v: &[f64],
+        sensor_nm: Option<f64>,
+    ) -> Recording {
         use rand::{Rng, SeedableRng};
-        let fs = 5000.0;
-        let (drive_v, _) = protocol_drive(fs);
-        let mut rec = simulate(twin, &drive_v, fs, None);
+        let fs = SENSED_FS_HZ;
+        let mut rec = simulate(twin, stage_v, fs, None);
+        rec.drive = Drive::Volts(sent_v.to_vec());
         if let Some(sigma) = sensor_nm {
-            let (_, truth) = simulate_with_truth(twin, &drive_v, fs);
+            let (_, truth) = simulate_with_truth(twin, stage_v, fs);
             let mut rng = rand::rngs::StdRng::seed_from_u64(5);
             let noise = |r: &mut rand::rngs::StdRng| r.sample::<f64, _>(rand_distr::StandardNormal);
             rec.measured_height_nm = Some(
@@ -2549,17 +2563,24 @@ mod tests {
         rec
     }
 
+    /// The corpus's nominal twin of `seed` with a single-term piezo creep of `fraction` and
+    /// 0.5 s.
+    fn creeping_twin(seed: u64, fraction: f64) -> TwinConfig {
+        let mut twin = nominal_twin(seed);
+        twin.actuator.creep = Some(Creep {
+            fraction,
+            tau_s: 0.5,
+            decades: None,
+        });
+        twin
+    }
+
     /// A creep of 0.1 % (0.24 nm on this protocol's 236 nm travel) is below what the
     /// deflection alone can name; the stage's height sensor (0.05 nm of noise) reads it on
     /// the piezo's path and names it, and that evidence is reported apart.
     #[test]
     fn a_height_sensor_witnesses_a_creep_the_deflection_cannot_name() {
-        let mut twin = nominal_twin(21);
-        twin.actuator.creep = Some(Creep {
-            fraction: 1e-3,
-            tau_s: 0.5,
-            decades: None,
-        });
+        let twin = creeping_twin(21, 1e-3);
         let opts = corpus_options();
         let alone = diagnose(&with_height_sensor(&twin, None), &opts).unwrap();
         assert_eq!(alone.verdict, Verdict::None, "{:?}", alone.effects[0]);
@@ -2588,8 +2609,7 @@ mod tests {
     #[test]
     fn a_height_sensor_names_a_delay_the_lag_took_up() {
         use crate::twin::{actuator::ResonantMode, dynamics::InputHold};
-        use rand::{Rng, SeedableRng};
-        let fs = 5000.0;
+        let fs = SENSED_FS_HZ;
         let (truth_s, stage_lag_s, q) = (0.2 / fs, 0.5 / fs, 0.5);
         let mut twin = nominal_twin(22);
         twin.detector.delay_s = truth_s;
@@ -2603,24 +2623,13 @@ mod tests {
             peak_gain: None,
         };
         let stage_v = super::model::DriveSpectrum::new(&drive_v).through(&mode, fs);
-        let recorded = |sensor: bool| {
-            let mut rec = simulate(&twin, &stage_v, fs, None);
-            rec.drive = Drive::Volts(drive_v.clone());
-            if sensor {
-                let (_, truth) = simulate_with_truth(&twin, &stage_v, fs);
-                let mut rng = rand::rngs::StdRng::seed_from_u64(6);
-                let mut noise = || 0.05 * rng.sample::<f64, _>(rand_distr::StandardNormal);
-                rec.measured_height_nm = Some(truth.iter().map(|s| s.base_nm + noise()).collect());
-            }
-            rec
-        };
         let opts = corpus_options();
-        let alone = diagnose(&recorded(false), &opts).unwrap();
+        let alone = diagnose(&sensed(&twin, &stage_v, &drive_v, None), &opts).unwrap();
         assert_eq!(alone.verdict, Verdict::None, "{:?}", alone.effects[0]);
         let lag = alone.before.actuator.lag_s;
         let both = truth_s + stage_lag_s;
         assert!((0.9..1.1).contains(&(lag / both)), "lag {lag} s");
-        let seen = diagnose(&recorded(true), &opts).unwrap();
+        let seen = diagnose(&sensed(&twin, &stage_v, &drive_v, Some(0.05)), &opts).unwrap();
         let top = &seen.effects[0];
         assert!(top.significant && top.id == "channel_delay", "{top:?}");
         assert!(top.sensor_evidence.unwrap() > 100.0, "{top:?}");
@@ -2642,18 +2651,13 @@ mod tests {
         );
     }
 
-    /// A creep a third the size of the one above: the deflection's screening passes it over
-    /// (it stays below its price there), but a sensor beside the drive has every piezo
-    /// candidate refitted, and the creep measured on the sensor is named (a hysteresis, fitted
-    /// to the deflection, takes up part of it there too, and loses).
+    /// A creep of 0.03 %, under a third of the one above: a sensor beside the drive has every
+    /// piezo candidate refitted, and the creep measured on the sensor is named. Refitted to
+    /// the deflection alone it strayed (below), the sensor refuted that fit, and a
+    /// hysteresis, which takes up part of the creep in the sensor, was named instead.
     #[test]
     fn a_height_sensor_has_a_small_creep_refitted() {
-        let mut twin = nominal_twin(23);
-        twin.actuator.creep = Some(Creep {
-            fraction: 3e-4,
-            tau_s: 0.5,
-            decades: None,
-        });
+        let twin = creeping_twin(23, 3e-4);
         let seen = diagnose(&with_height_sensor(&twin, Some(0.05)), &corpus_options()).unwrap();
         let top = &seen.effects[0];
         assert!(top.significant && top.id == "piezo_creep", "{top:?}");

@@ -154,9 +154,21 @@ impl Regression {
 
     /// Residual sums of squares (train, held-out) of the fit with `paths` ([`Self::residuals`]).
     fn residual_sums(&self, paths: &[&[f64]]) -> Option<(f64, f64)> {
-        let r = self.residuals(paths)?;
+        Some(self.sums(&self.residuals(paths)?))
+    }
+
+    /// Sums of squares (train, held-out) of residuals `r` on every sample.
+    fn sums(&self, r: &[f64]) -> (f64, f64) {
         let sum = |idx: &[usize]| idx.iter().map(|&i| r[i] * r[i]).sum::<f64>();
-        Some((sum(&self.train), sum(&self.held)))
+        (sum(&self.train), sum(&self.held))
+    }
+
+    /// Degrees of freedom of a fit with `paths` path columns on the train samples (at least 1).
+    fn dof(&self, paths: usize) -> f64 {
+        self.train
+            .len()
+            .saturating_sub(self.parameters(paths))
+            .max(1) as f64
     }
 
     /// How many times its χ² overcounts the evidence where the channel's noise is
@@ -196,12 +208,7 @@ impl Regression {
     /// to rounding has no noise to scale by, and witnesses nothing).
     fn noise_scale(&self, paths: &[&[f64]]) -> Option<f64> {
         let (rss_train, _) = self.residual_sums(paths)?;
-        let dof = self
-            .train
-            .len()
-            .saturating_sub(self.parameters(paths.len()))
-            .max(1) as f64;
-        let sigma = (rss_train / dof).sqrt();
+        let sigma = (rss_train / self.dof(paths.len())).sqrt();
         let n = self.target.len() as f64;
         let rms = (self.target.iter().map(|x| x * x).sum::<f64>() / n).sqrt();
         (sigma.is_finite() && sigma > 1e-9 * rms).then_some(sigma)
@@ -283,61 +290,50 @@ impl HeightWitness {
     }
 
     /// The single-term creep that fits the sensor best on `path_nm`, a piezo path without
-    /// creep (the drive through the nominal gain): `(fraction, tau_s)`, from `taus_s`. A
-    /// creep adds `fraction·(path through a first-order lag of τ)`, linear in the fraction:
-    /// for each τ the fraction is the ratio of the two paths' coefficients in one regression
-    /// (beside the nuisance columns), and the τ with the least train residual is taken.
+    /// creep (the drive through the nominal gain), its τ from `taus_s`. A creep adds
+    /// `fraction·(path through a first-order lag of τ)`, linear in the fraction: for each τ the
+    /// fraction is the ratio of the two paths' coefficients in one regression (beside the
+    /// nuisance columns), and the τ with the least train residual is taken.
     /// Not a judgement (that is [`Self::chi2`] on a model the deflection fitted): where the
     /// deflection barely shows a creep, its own fit strays, and this is where its refit can
     /// start instead. `None` without a positive fraction.
     pub fn creep_fit(&self, path_nm: &[f64], fs_hz: f64, taus_s: &[f64]) -> Option<SensorCreep> {
         let first = *path_nm.first()?;
-        let creep_path = |tau: f64| -> Vec<f64> {
-            let mut lag = FirstOrder::new(tau, fs_hz);
-            lag.settle(first);
-            path_nm.iter().map(|&x| lag.step(x)).collect()
-        };
-        let solve = |tau: f64| self.fit.fit(&[path_nm, &creep_path(tau)]);
-        let fits: Vec<Option<(f64, f64)>> = taus_s
+        let sigma2 = |rss: f64| rss / self.fit.dof(2);
+        // (fraction, train RSS, sd of ln fraction) per τ; the sd from the creep column's
+        // coefficient error, the gain's neglected.
+        let fits: Vec<Option<(f64, f64, f64)>> = taus_s
             .iter()
             .map(|&tau| {
-                let f = solve(tau)?;
-                let r = &f.residuals;
-                let rss: f64 = self.fit.train.iter().map(|&i| r[i] * r[i]).sum();
-                Some((f.path_coefs[1] / f.path_coefs[0], rss))
+                let mut lag = FirstOrder::new(tau, fs_hz);
+                lag.settle(first);
+                let creep: Vec<f64> = path_nm.iter().map(|&x| lag.step(x)).collect();
+                let f = self.fit.fit(&[path_nm, &creep])?;
+                let rss = self.fit.sums(&f.residuals).0;
+                let fraction = f.path_coefs[1] / f.path_coefs[0];
+                let sd = sigma2(rss).sqrt() * f.path_sd_per_sigma[1] / f.path_coefs[1].abs();
+                Some((fraction, rss, sd))
             })
             .collect();
+        let rss = |k: usize| fits[k].map_or(f64::INFINITY, |x| x.1);
         let k = (0..fits.len())
-            .filter(|&k| fits[k].is_some_and(|(f, _)| f > 0.0 && f.is_finite()))
-            .min_by(|&a, &b| {
-                let rss = |k: usize| fits[k].map_or(f64::INFINITY, |x| x.1);
-                rss(a).total_cmp(&rss(b))
-            })?;
-        let (fraction, rss) = fits[k]?;
-        let dof = self
-            .fit
-            .train
-            .len()
-            .saturating_sub(self.fit.parameters(2))
-            .max(1) as f64;
-        let sigma2 = rss / dof;
+            .filter(|&k| fits[k].is_some_and(|(f, _, _)| f > 0.0 && f.is_finite()))
+            .min_by(|&a, &b| rss(a).total_cmp(&rss(b)))?;
+        let (fraction, best, ln_fraction_sd) = fits[k]?;
         // ln τ: the curvature of the profile residual (the fraction refitted at each τ) about
         // the best grid point, χ² = RSS/σ² rising by one at one standard deviation.
-        let ln_tau_sd = match (
-            k.checked_sub(1).and_then(|j| fits[j]),
-            fits.get(k + 1).copied(),
-        ) {
-            (Some((_, below)), Some(Some((_, above)))) => {
+        let neighbours = (
+            k.checked_sub(1).and_then(|b| fits[b]),
+            fits.get(k + 1).copied().flatten(),
+        );
+        let ln_tau_sd = match neighbours {
+            (Some((_, below, _)), Some((_, above, _))) => {
                 let h = (taus_s[k + 1] / taus_s[k]).ln();
-                let curvature = (below + above - 2.0 * rss) / (h * h);
-                (2.0 * sigma2 / curvature).sqrt()
+                let curvature = (below + above - 2.0 * best) / (h * h);
+                (2.0 * sigma2(best) / curvature).sqrt()
             }
             _ => f64::NAN,
         };
-        // ln fraction: the creep column's coefficient error at that τ, the gain's neglected.
-        let ln_fraction_sd = solve(taus_s[k]).map_or(f64::NAN, |f| {
-            sigma2.sqrt() * f.path_sd_per_sigma[1] / (fraction * f.path_coefs[0]).abs()
-        });
         Some(SensorCreep {
             fraction,
             tau_s: taus_s[k],
@@ -346,9 +342,10 @@ impl HeightWitness {
         })
     }
 
-    /// Train samples the sensor is fitted on.
-    pub fn train_len(&self) -> usize {
-        self.dynamics.train.len()
+    /// Degrees of freedom of the sensor's fit against one path with its lag
+    /// ([`Self::dynamics_rss`]).
+    pub fn dynamics_dof(&self) -> f64 {
+        self.dynamics.dof(1)
     }
 
     /// χ² (train, held-out) of the sensor against `path_nm` with a free scale, beside the
