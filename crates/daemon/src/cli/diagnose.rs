@@ -15,7 +15,7 @@ use viscoprobe_core::diagnose::bench::{score, CaseOutcome, Score};
 use viscoprobe_core::diagnose::corpus::{concealed_corpus_with, CorpusCase, MATERIAL_TERMS};
 use viscoprobe_core::diagnose::model::{DEFAULT_NOMINAL_TERMS, MAX_NOMINAL_TERMS};
 use viscoprobe_core::diagnose::{
-    diagnose_with, BasePosition, DiagnoseOptions, Diagnosis, FitSummary, Weighting,
+    diagnose_with, BasePosition, DiagnoseOptions, Diagnosis, FitSummary, Param, Weighting,
 };
 
 #[derive(Debug, Args)]
@@ -276,14 +276,13 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
             );
         }
         for p in &e.params {
-            if p.ci95[0].is_finite() && p.ci95[1].is_finite() && p.ci95 != [p.value, p.value] {
-                println!(
-                    "    {} = {:.4e} {} (95 % [{:.4e}, {:.4e}])",
-                    p.name, p.value, p.unit, p.ci95[0], p.ci95[1]
-                );
-            } else {
-                println!("    {} = {:.4e} {}", p.name, p.value, p.unit);
-            }
+            println!(
+                "    {} = {:.4e} {}{}",
+                p.name,
+                p.value,
+                p.unit,
+                interval_text(p)
+            );
         }
     }
     if let Some(top) = sig.first() {
@@ -618,6 +617,31 @@ fn fit_plot(path: &Path, d: &Diagnosis) -> anyhow::Result<()> {
 /// parallelism belongs here). Cases are the coarser grain, so they get the cores first; the
 /// cores left over go to each case's simulations (see [`Threads`]), so that the threads in
 /// use never outnumber the cores. `progress` is called after each case.
+/// Decades a positive parameter's 95 % interval may span and still be printed as bounds:
+/// wider, the deflection's fit (which sets the interval) does not bound the parameter, and
+/// bounds such as 1e-155 and 1e147 (a creep named on a hard reference's evidence) read as a
+/// fault rather than as that.
+const MAX_PRINTED_DECADES: f64 = 6.0;
+
+/// A parameter's interval, as the text report prints it after its value: its bounds; that the
+/// deflection's fit does not bound it, where it spans more than [`MAX_PRINTED_DECADES`]; or
+/// nothing, for a held parameter (zero width) or one without an interval. `--json` keeps the
+/// bounds as they are.
+fn interval_text(p: &Param) -> String {
+    let [lo, hi] = p.ci95;
+    if !(lo.is_finite() && hi.is_finite()) || p.ci95 == [p.value, p.value] {
+        return String::new();
+    }
+    // As a difference of logarithms: the ratio of such bounds overflows.
+    let decades = hi.log10() - lo.log10();
+    if lo > 0.0 && decades > MAX_PRINTED_DECADES {
+        return format!(
+            " (not bounded by the deflection's fit: its 95 % interval spans {decades:.0} decades)"
+        );
+    }
+    format!(" (95 % [{lo:.4e}, {hi:.4e}])")
+}
+
 pub fn run_corpus(
     cases: &[CorpusCase],
     threads: usize,
@@ -781,4 +805,52 @@ pub fn run_bench(args: BenchArgs) -> anyhow::Result<()> {
         cases[0].recording.len()
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn param(value: f64, ci95: [f64; 2]) -> Param {
+        Param {
+            name: "fraction".into(),
+            unit: "1",
+            value,
+            ci95,
+        }
+    }
+
+    /// Bounds within six decades are printed; wider ones say the recording does not fix
+    /// the parameter (fresh rec19 of the independent simulator printed a creep fraction
+    /// with 95 % [5.1283e-155, 1.5843e147]); held and unbounded ones print nothing.
+    #[test]
+    fn an_interval_wider_than_six_decades_is_not_printed_as_bounds() {
+        assert_eq!(
+            interval_text(&param(2e-3, [1e-3, 4e-3])),
+            " (95 % [1.0000e-3, 4.0000e-3])"
+        );
+        assert_eq!(
+            interval_text(&param(1e-6, [1e-9, 1e-3])),
+            " (95 % [1.0000e-9, 1.0000e-3])"
+        );
+        assert_eq!(
+            interval_text(&param(1.3e-6, [4.1e-11, 4.1e-2])),
+            " (not bounded by the deflection's fit: its 95 % interval spans 9 decades)"
+        );
+        assert_eq!(
+            interval_text(&param(2.85e-4, [5.13e-155, 1.58e147])),
+            " (not bounded by the deflection's fit: its 95 % interval spans 301 decades)"
+        );
+        assert_eq!(
+            interval_text(&param(5.03, [8.67e-188, 2.92e188])),
+            " (not bounded by the deflection's fit: its 95 % interval spans 376 decades)"
+        );
+        // A signed parameter (a drift rate, a cubic coefficient) keeps its bounds.
+        assert_eq!(
+            interval_text(&param(-1.0, [-3.0, 1e9])),
+            " (95 % [-3.0000e0, 1.0000e9])"
+        );
+        assert_eq!(interval_text(&param(5.0, [5.0, 5.0])), "");
+        assert_eq!(interval_text(&param(5.0, [f64::NAN, 7.0])), "");
+    }
 }
