@@ -732,6 +732,19 @@ def case_table():
         add(["tip_geometry"], fs=16000, drive="nm", height=True, exc="multisine")
         add(["missing_relaxation"], fs=16000, drive="nm", height=True, exc="multisine")
         add(["channel_delay"], fs=10000, drive="nm", height=True, exc="multisine")
+    # SIM_CASES=refnulls (added by viscoprobe, not by the author): eight null recordings
+    # beside a hard reference, a make-up the set above has twice: a false-positive control
+    # for what the diagnosis credits to the reference channel.
+    if os.environ.get("SIM_CASES") == "refnulls":
+        C.clear()
+        add([], fs=8000, drive="v", ref=True, exc="step")
+        add([], fs=10000, drive="v", ref=True, exc="multisine")
+        add([], fs=5000, drive="v", ref=True, tip="cone", exc="step")
+        add([], fs=16000, drive="nm", ref=True, exc="multisine")
+        add([], fs=8000, drive="nm", ref=True, exc="step", pink=1.0)
+        add([], fs=20000, drive="v", ref=True, exc="multisine")
+        add([], fs=10000, drive="v", ref=True, tip="cone", exc="step")
+        add([], fs=8000, drive="v", ref=True, exc="multisine", pink=0.5)
     return C
 
 
