@@ -1156,31 +1156,26 @@ pub fn diagnose_with(
     // moves (a contact point, a gain): on eight null recordings of the independent simulator
     // beside a reference, a detector's nonlinearity was named on 159 χ² units of the
     // reference's while the deflection's held-out fit got worse. Against the nominal twin,
-    // an effect of the chain (`model::CHAIN_EFFECTS`) is credited on the reference with no
-    // more than its own physics does there: its reading of the reference against the
-    // nominal twin's at the candidate's own nominal parameters. (Not the sample's lag
-    // traders: a drag's refit moving the lag back where the reference has it is its
-    // evidence, and capping it too cost the independent simulator's old rec09 its drag.)
-    let chain_physics_on_reference = |base: &Fitted, cand: &Fitted| -> Option<(f64, f64)> {
+    // an effect of the chain (`model::CHAIN_EFFECTS`) is therefore measured on the reference
+    // from the lower of two readings: the nominal twin's own, and the nominal twin's at the
+    // candidate's nominal parameters (this, `None` otherwise), so that it earns there only
+    // what its own physics does. (Not the sample's lag traders: a drag's refit moving the lag
+    // back where the reference has it is its evidence, and measuring it so too cost the
+    // independent simulator's old rec09 its drag.)
+    let nominal_at_candidate = |base: &Fitted, cand: &Fitted| -> Option<(f64, f64)> {
         let w = reference.as_ref()?;
-        let n_nom = base.spec.n_nominal();
         let chain_only = cand
             .spec
             .effects
             .iter()
             .all(|e| model::CHAIN_EFFECTS.contains(e));
-        if !base.spec.effects.is_empty()
-            || !chain_only
-            || cand.spec.terms != base.spec.terms
-            || cand.theta.len() < n_nom
-        {
+        if !base.spec.effects.is_empty() || !chain_only {
             return None;
         }
-        let without = problem
-            .simulate_reference(&base.spec, &cand.theta[..n_nom], &cand.eval.linear)
-            .and_then(|p| w.chi2(&p))?;
-        let with = reference_chi2(cand)?;
-        Some((without.0 - with.0, without.1 - with.1))
+        let nominal_theta = cand.theta.get(..base.spec.n_nominal())?;
+        problem
+            .simulate_reference(&base.spec, nominal_theta, &cand.eval.linear)
+            .and_then(|p| w.chi2(&p))
     };
     let sensor_lag = lag_refuted(&nom);
     let judge = |base: &Fitted, cand: &Fitted| -> Judgement {
@@ -1201,13 +1196,14 @@ pub fn diagnose_with(
         .map(|(b, c)| (b.0 - c.0, b.1 - c.1));
         let (s_train, s_held) = sensor.unwrap_or((0.0, 0.0));
         let reference = (base.spec.chain_differs() || cand.spec.chain_differs())
-            .then(|| reference_chi2(base).zip(reference_chi2(cand)))
-            .flatten()
-            .map(|(b, c)| (b.0 - c.0, b.1 - c.1))
-            .map(|drop| match chain_physics_on_reference(base, cand) {
-                Some(own) => (drop.0.min(own.0), drop.1.min(own.1)),
-                None => drop,
-            });
+            .then(|| {
+                let (mut b, c) = (reference_chi2(base)?, reference_chi2(cand)?);
+                if let Some(n) = nominal_at_candidate(base, cand) {
+                    b = (b.0.min(n.0), b.1.min(n.1));
+                }
+                Some((b.0 - c.0, b.1 - c.1))
+            })
+            .flatten();
         let (r_train, r_held) = reference.unwrap_or((0.0, 0.0));
         let train_drop = base.eval.chi2_train - cand.eval.chi2_train + s_train + r_train;
         let held_drop = base.eval.chi2_held - cand.eval.chi2_held + s_held + r_held;

@@ -411,6 +411,31 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
     }
 }
 
+/// Decades a positive parameter's 95 % interval may span and still be printed as bounds:
+/// wider, the deflection's fit (which sets the interval) does not bound the parameter, and
+/// bounds such as 1e-155 and 1e147 (a creep named on a hard reference's evidence) read as a
+/// fault rather than as that.
+const MAX_PRINTED_DECADES: f64 = 6.0;
+
+/// A parameter's interval, as the text report prints it after its value: its bounds; that the
+/// deflection's fit does not bound it, where it spans more than [`MAX_PRINTED_DECADES`]; or
+/// nothing, for a held parameter (zero width) or one without an interval. `--json` keeps the
+/// bounds as they are.
+fn interval_text(p: &Param) -> String {
+    let [lo, hi] = p.ci95;
+    if !(lo.is_finite() && hi.is_finite()) || p.ci95 == [p.value, p.value] {
+        return String::new();
+    }
+    // As a difference of logarithms: the ratio of such bounds overflows.
+    let decades = hi.log10() - lo.log10();
+    if lo > 0.0 && decades > MAX_PRINTED_DECADES {
+        return format!(
+            " (not bounded by the deflection's fit: its 95 % interval spans {decades:.0} decades)"
+        );
+    }
+    format!(" (95 % [{lo:.4e}, {hi:.4e}])")
+}
+
 const PLOT_SIZE: (u32, u32) = (1000, 560);
 
 /// Residuals before/after over time, residual spectra against the floor, data vs models.
@@ -617,31 +642,6 @@ fn fit_plot(path: &Path, d: &Diagnosis) -> anyhow::Result<()> {
 /// parallelism belongs here). Cases are the coarser grain, so they get the cores first; the
 /// cores left over go to each case's simulations (see [`Threads`]), so that the threads in
 /// use never outnumber the cores. `progress` is called after each case.
-/// Decades a positive parameter's 95 % interval may span and still be printed as bounds:
-/// wider, the deflection's fit (which sets the interval) does not bound the parameter, and
-/// bounds such as 1e-155 and 1e147 (a creep named on a hard reference's evidence) read as a
-/// fault rather than as that.
-const MAX_PRINTED_DECADES: f64 = 6.0;
-
-/// A parameter's interval, as the text report prints it after its value: its bounds; that the
-/// deflection's fit does not bound it, where it spans more than [`MAX_PRINTED_DECADES`]; or
-/// nothing, for a held parameter (zero width) or one without an interval. `--json` keeps the
-/// bounds as they are.
-fn interval_text(p: &Param) -> String {
-    let [lo, hi] = p.ci95;
-    if !(lo.is_finite() && hi.is_finite()) || p.ci95 == [p.value, p.value] {
-        return String::new();
-    }
-    // As a difference of logarithms: the ratio of such bounds overflows.
-    let decades = hi.log10() - lo.log10();
-    if lo > 0.0 && decades > MAX_PRINTED_DECADES {
-        return format!(
-            " (not bounded by the deflection's fit: its 95 % interval spans {decades:.0} decades)"
-        );
-    }
-    format!(" (95 % [{lo:.4e}, {hi:.4e}])")
-}
-
 pub fn run_corpus(
     cases: &[CorpusCase],
     threads: usize,
@@ -820,8 +820,8 @@ mod tests {
         }
     }
 
-    /// Bounds within six decades are printed; wider ones say the recording does not fix
-    /// the parameter (fresh rec19 of the independent simulator printed a creep fraction
+    /// Bounds within six decades are printed; wider ones say the deflection's fit does not
+    /// bound the parameter (fresh rec19 of the independent simulator printed a creep fraction
     /// with 95 % [5.1283e-155, 1.5843e147]); held and unbounded ones print nothing.
     #[test]
     fn an_interval_wider_than_six_decades_is_not_printed_as_bounds() {
