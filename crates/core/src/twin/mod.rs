@@ -25,7 +25,9 @@ pub mod dynamics;
 pub mod feedforward;
 pub mod material;
 
-use crate::contact::{decreasing_root, decreasing_root_and_slope, Contact, TipGeometry};
+use crate::contact::{
+    decreasing_root, decreasing_root_and_slope, Contact, ShapeFunction, TipGeometry,
+};
 use crate::prony::PronySeries;
 use actuator::{Actuator, ActuatorConfig};
 use detector::{Detector, DetectorConfig};
@@ -526,6 +528,8 @@ pub struct Twin {
     actuator: Actuator,
     material: MaterialState,
     contact: Contact,
+    /// `contact`'s shape function for the contact solve, warm-started sample to sample.
+    shape: ShapeFunction,
     /// `contact.force_factor()`, asked for in every sample's solve: a power-law tip's costs
     /// two gamma functions and a `powf`, so it is worked out once here.
     force_factor: f64,
@@ -555,6 +559,7 @@ impl Twin {
             actuator: Actuator::new(&cfg.actuator, fs_hz),
             material: MaterialState::new(&cfg.sample.material, fs_hz),
             contact,
+            shape: ShapeFunction::new(contact),
             force_factor: contact.force_factor(),
             slot: SampleSlot::Soft,
             in_contact: false,
@@ -591,6 +596,7 @@ impl Twin {
         self.in_contact = false;
         self.neck_foot_m = None;
         self.elapsed_samples = 0;
+        self.shape.forget();
         self.last_base_nm = self.actuator.position_nm();
         self.earlier_base_nm = self.last_base_nm;
         let (d, _) = self.solve_contact(self.last_base_nm, 0.0, false);
@@ -708,6 +714,7 @@ impl Twin {
         let f_net_n = f_adh_n - f_ext_n;
         let cf = self.force_factor;
         let contact = self.contact;
+        let shape = &self.shape;
         let (alpha, beta) = self.material.affine();
         let gap_m = (base_nm - self.soft_surface_nm()) * 1e-9;
         let k_si = k; // N/m
@@ -723,7 +730,7 @@ impl Twin {
         let film = |h_m: f64| -> Option<f64> {
             match s.thickness_nm {
                 Some(th) if h_m > 0.0 => {
-                    let chi = contact.contact_radius(h_m) / (th * 1e-9);
+                    let chi = shape.contact_radius(h_m) / (th * 1e-9);
                     Some(
                         1.0 + 1.133 * chi
                             + 1.283 * chi.powi(2)
@@ -740,7 +747,7 @@ impl Twin {
         // factor), from one evaluation of the shape function.
         let g_and_slope = |d_m: f64| -> (f64, f64) {
             let h = gap_m - d_m;
-            let (hk, dhk) = contact.y_and_slope(h);
+            let (hk, dhk) = shape.y_and_slope(h);
             let c = film(h);
             (
                 hk - unfilmed(alpha * cf * (k_si * d_m + f_net_n), c) - beta,
