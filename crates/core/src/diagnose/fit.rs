@@ -573,27 +573,14 @@ mod tests {
         let drive = drive[..6000].to_vec();
         let rec = simulate(twin, &drive, FS_HZ, None);
         let n = drive.len();
-        let (train, held) = (0..n).partition(|k| (k / 100) % 3 != 1);
-        let problem = Problem {
-            fs_hz: FS_HZ,
+        let problem = super::super::model::test_problem(
+            twin,
+            FS_HZ,
             drive,
-            deflection_v: rec.deflection_v,
-            t_s: rec.time_s,
-            spring_constant_n_per_m: twin.cantilever.spring_constant_n_per_m,
-            sensitivity_nm_per_v: twin.cantilever.deflection_sensitivity_nm_per_v,
-            declared_tip: twin.tip,
-            poisson_ratio: twin.sample.poisson_ratio,
-            whitening: vec![1.0, -0.2],
-            sigma_w_v: twin.detector.white_noise_v,
-            train,
-            held,
-            mains_hz: 50.0,
-            floor_from_hz: 1.0,
-            fixed_columns: Default::default(),
-            drive_spectrum: Default::default(),
-            simulations: Default::default(),
-            tip_reference_depth_nm: 0.0,
-        };
+            rec.deflection_v,
+            (0..n).partition(|k| (k / 100) % 3 != 1),
+            vec![1.0, -0.2],
+        );
         // A start some way off: gain, contact point and material all wrong by a few %.
         let mut material = twin.sample.material.clone();
         material.j0_per_pa *= 1.1;

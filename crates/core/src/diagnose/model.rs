@@ -1602,6 +1602,39 @@ pub fn n_params(problem: &Problem, spec: &ModelSpec) -> usize {
     spec.n_nonlinear() + problem.n_linear(spec)
 }
 
+/// A problem for tests: `twin`'s calibration, `deflection_v` (at `fs_hz`, `drive`'s length)
+/// white at the twin's noise, mains at 50 Hz, the train and held-out samples given.
+#[cfg(test)]
+pub(crate) fn test_problem(
+    twin: &crate::twin::TwinConfig,
+    fs_hz: f64,
+    drive: Vec<f64>,
+    deflection_v: Vec<f64>,
+    (train, held): (Vec<usize>, Vec<usize>),
+    whitening: Vec<f64>,
+) -> Problem {
+    Problem {
+        fs_hz,
+        t_s: (0..drive.len()).map(|k| k as f64 / fs_hz).collect(),
+        drive,
+        deflection_v,
+        spring_constant_n_per_m: twin.cantilever.spring_constant_n_per_m,
+        sensitivity_nm_per_v: twin.cantilever.deflection_sensitivity_nm_per_v,
+        declared_tip: twin.tip,
+        poisson_ratio: twin.sample.poisson_ratio,
+        whitening,
+        sigma_w_v: twin.detector.white_noise_v,
+        train,
+        held,
+        mains_hz: 50.0,
+        floor_from_hz: 1.0,
+        fixed_columns: Default::default(),
+        drive_spectrum: Default::default(),
+        simulations: Default::default(),
+        tip_reference_depth_nm: 0.0,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
