@@ -341,7 +341,7 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
             s.material
                 .terms
                 .iter()
-                .map(|t| format!("{:.3} ms", t.tau_s * 1e3))
+                .map(|t| tau_text(t.tau_s))
                 .collect::<Vec<_>>()
                 .join(", ")
         )
@@ -807,9 +807,28 @@ pub fn run_bench(args: BenchArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// A retardation time in ms, or in µs below 0.1 ms: a term a fit pushed toward zero (in
+/// effect instantaneous compliance) printed as "0.000 ms" looked like a formatting fault.
+fn tau_text(tau_s: f64) -> String {
+    if tau_s >= 1e-4 {
+        format!("{:.3} ms", tau_s * 1e3)
+    } else {
+        format!("{:.3} µs", tau_s * 1e6)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Retardation times print in ms down to 0.1 ms and in µs below, never as "0.000 ms".
+    #[test]
+    fn a_short_retardation_time_prints_in_microseconds() {
+        assert_eq!(tau_text(0.025_28), "25.280 ms");
+        assert_eq!(tau_text(1e-4), "0.100 ms");
+        assert_eq!(tau_text(1.5817e-7), "0.158 µs");
+        assert_eq!(tau_text(4.74e-5), "47.400 µs");
+    }
 
     fn param(value: f64, ci95: [f64; 2]) -> Param {
         Param {
