@@ -192,14 +192,7 @@ impl Contact {
                 half_angle_rad,
             } => {
                 let bc = BluntedCone::new(radius_m, half_angle_rad);
-                if h_m <= 0.0 {
-                    (0.0, 0.0)
-                } else if h_m <= bc.h_t {
-                    hertz_y_and_slope(h_m)
-                } else {
-                    let p = bc.at(bc.s_from_h(h_m).0);
-                    (bc.y_scale * p.g, 2.0 * bc.y_scale * p.a)
-                }
+                bc.y_and_slope(h_m, |h| bc.at(bc.s_from_h(h).0))
             }
             TipGeometry::PowerLaw { exponent, .. } => {
                 if h_m <= 0.0 {
@@ -412,12 +405,32 @@ impl BluntedCone {
     /// `π s/(2 tan α) − b/tan α + b²/(2R)`, or, if larger, that of `h_t + m0·s + s²/R`, h's
     /// Taylor polynomial at 0 (the cone part adds no s² term).
     fn s_from_h(&self, h_m: f64) -> (f64, usize) {
+        let end = self.solve_h(h_m, self.s_start(h_m));
+        (end.s, end.evaluations)
+    }
+
+    /// The Newton solve of [`BluntedCone::s_from_h`] from `s0`.
+    fn solve_h(&self, h_m: f64, s0: f64) -> NewtonEnd {
         let hi = 2.0 * h_m * self.tan_a / std::f64::consts::PI + self.b;
         let tiny = 4.0 * f64::EPSILON * h_m;
-        self.newton(hi, self.s_start(h_m), |p| {
+        self.newton_end(hi, s0, |p| {
             let f = p.h - h_m;
             (f, f / p.dh_ds, f.abs() <= tiny)
         })
+    }
+
+    /// `(Φ(h), Φ'(h))`: the sphere's on the cap, and above it from `point(h)`, the contact
+    /// there (solved cold by [`Contact::y_and_slope`], warm by [`ShapeFunction`]).
+    #[inline]
+    fn y_and_slope(&self, h_m: f64, point: impl FnOnce(f64) -> BluntedPoint) -> (f64, f64) {
+        if h_m <= 0.0 {
+            (0.0, 0.0)
+        } else if h_m <= self.h_t {
+            hertz_y_and_slope(h_m)
+        } else {
+            let p = point(h_m);
+            (self.y_scale * p.g, 2.0 * self.y_scale * p.a)
+        }
     }
 
     /// The closed-form start of [`BluntedCone::s_from_h`].
@@ -524,13 +537,7 @@ impl BluntedCone {
     /// target. It saves one of the two evaluations a warm-started solve takes.
     /// Also returns the evaluations the solve took.
     fn point_at_h(&self, h_m: f64, start: Option<f64>) -> (f64, BluntedPoint, usize) {
-        let hi = 2.0 * h_m * self.tan_a / std::f64::consts::PI + self.b;
-        let tiny = 4.0 * f64::EPSILON * h_m;
-        let s0 = start.unwrap_or_else(|| self.s_start(h_m));
-        let end = self.newton_end(hi, s0, |p| {
-            let f = p.h - h_m;
-            (f, f / p.dh_ds, f.abs() <= tiny)
-        });
+        let end = self.solve_h(h_m, start.unwrap_or_else(|| self.s_start(h_m)));
         match end.last_step {
             Some((s, p)) => {
                 let d = s - end.s;
@@ -562,11 +569,11 @@ struct NewtonEnd {
 /// Only the blunted cone gains. Its constants are worked out once, not on every call, and
 /// its contact-radius solve starts from a Newton step off the last point it found rather than
 /// from the closed-form start (a within ~5 %): one or two evaluations of Briscoe's formulas
-/// in place of four to six (see `BluntedCone::point_at_h`). On the independent simulator's
-/// rec20 a pair fit with a blunted tip had cost 14 ms per simulation against a sphere's 2 ms;
-/// that record's fits with a tip fell from 7.2 to 4.3 ms per simulation on average. The
-/// tolerance is the cold solve's, so the two agree within 1e-13 relative, not to the bit.
-/// Every other tip is [`Contact::y_and_slope`] itself.
+/// in place of four to six (see `BluntedCone::point_at_h`). A blunted twin had cost seven
+/// times a sphere's per sample; `cargo bench --bench twin_speed` times one (2026-11-27: 880
+/// ns/sample before, 506 after, the sphere's 129). The tolerance is the cold solve's, so the
+/// two agree within 1e-13 relative, not to the bit. Every other tip is
+/// [`Contact::y_and_slope`] itself.
 ///
 /// The last point lives in a [`Cell`](std::cell::Cell) so that the solve's closures can
 /// stay `Fn`; it is a start, never a result, so a stale or foreign one costs only iterations.
@@ -611,17 +618,17 @@ impl ShapeFunction {
         self.last.set(None);
     }
 
+    /// The contact this is the shape function of.
+    pub fn contact(&self) -> Contact {
+        self.contact
+    }
+
     /// [`Contact::y_and_slope`].
     #[inline]
     pub fn y_and_slope(&self, h_m: f64) -> (f64, f64) {
         match &self.blunted {
             None => self.contact.y_and_slope(h_m),
-            Some(_) if h_m <= 0.0 => (0.0, 0.0),
-            Some(bc) if h_m <= bc.h_t => hertz_y_and_slope(h_m),
-            Some(bc) => {
-                let p = self.blunted_point(bc, h_m);
-                (bc.y_scale * p.g, 2.0 * bc.y_scale * p.a)
-            }
+            Some(bc) => bc.y_and_slope(h_m, |h| self.blunted_point(bc, h)),
         }
     }
 

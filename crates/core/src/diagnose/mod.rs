@@ -1324,19 +1324,18 @@ pub fn diagnose_with(
         if let Some((a, fa, _)) = sig_singles.first().cloned() {
             // Each partner in its best form and, where that is another, its plain one.
             let wide = leaves_structure(&fa);
+            let significant_alone = |b: &Effect| sig_singles.iter().any(|(s, _, _)| s == b);
             let others: Vec<&(Effect, Fitted)> = singles
                 .iter()
                 .chain(&plain_forms)
                 .filter(|(b, _)| *b != a)
-                .filter(|(b, _)| wide || sig_singles.iter().any(|(s, _, _)| s == b))
+                .filter(|(b, _)| wide || significant_alone(b))
                 .collect();
+            let mut jobs: Vec<(&Fitted, &(Effect, Fitted))> =
+                others.iter().map(|o| (&fa, *o)).collect();
             // The first effect likewise, where the best one leaves structure: its best form
             // may be bent to mimic the partner (an adhesive neck standing in for a blunt
             // cone's contact), and only its plain form pairs with the partner's truth.
-            let mut firsts: Vec<&Fitted> = vec![&fa];
-            if wide {
-                firsts.extend(plain_forms.iter().filter(|(e, _)| *e == a).map(|(_, f)| f));
-            }
             // The plain form pairs only with the partners significant on their own, as every
             // first does where the best single leaves no structure. On the independent
             // simulator's rec20 a resonance's plain form had paired with eight partners (a
@@ -1347,14 +1346,12 @@ pub fn diagnose_with(
             // choice (2026-11-27). A gap rule (pair where the partner alone explains more
             // than the plain form falls short of the best) lost the adhesion's: its neck
             // stood 385 249 χ² units above the plain form, the tip alone explained 25 292.
-            let worth_pairing = |first: &Fitted, partner: Effect| {
-                std::ptr::eq(first, &fa) || sig_singles.iter().any(|(s, _, _)| *s == partner)
-            };
-            let jobs: Vec<(&Fitted, &(Effect, Fitted))> = firsts
-                .iter()
-                .flat_map(|f| others.iter().map(move |o| (*f, *o)))
-                .filter(|(f, (b, _))| worth_pairing(f, *b))
-                .collect();
+            if wide {
+                for (_, plain) in plain_forms.iter().filter(|(e, _)| *e == a) {
+                    let partners = others.iter().filter(|(b, _)| significant_alone(b));
+                    jobs.extend(partners.map(|o| (plain, *o)));
+                }
+            }
             let pairs = fan::map(fan, jobs.len(), |j| {
                 let (first, (b, fb)) = jobs[j];
                 let spec = ModelSpec::pair_of(&first.spec, &fb.spec);

@@ -527,10 +527,10 @@ pub struct Twin {
     fs_hz: f64,
     actuator: Actuator,
     material: MaterialState,
-    contact: Contact,
-    /// `contact`'s shape function for the contact solve, warm-started sample to sample.
+    /// The contact's shape function (and the contact itself: [`ShapeFunction::contact`]),
+    /// warm-started sample to sample.
     shape: ShapeFunction,
-    /// `contact.force_factor()`, asked for in every sample's solve: a power-law tip's costs
+    /// The contact's `force_factor()`, asked for in every sample's solve: a power-law tip's costs
     /// two gamma functions and a `powf`, so it is worked out once here.
     force_factor: f64,
     slot: SampleSlot,
@@ -558,7 +558,6 @@ impl Twin {
         let mut twin = Self {
             actuator: Actuator::new(&cfg.actuator, fs_hz),
             material: MaterialState::new(&cfg.sample.material, fs_hz),
-            contact,
             shape: ShapeFunction::new(contact),
             force_factor: contact.force_factor(),
             slot: SampleSlot::Soft,
@@ -713,8 +712,8 @@ impl Twin {
         // the lever: K·d = F_contact − F_adh + F_ext.
         let f_net_n = f_adh_n - f_ext_n;
         let cf = self.force_factor;
-        let contact = self.contact;
         let shape = &self.shape;
+        let contact = shape.contact();
         let (alpha, beta) = self.material.affine();
         let gap_m = (base_nm - self.soft_surface_nm()) * 1e-9;
         let k_si = k; // N/m

@@ -436,6 +436,16 @@ fn interval_text(p: &Param) -> String {
     format!(" (95 % [{lo:.4e}, {hi:.4e}])")
 }
 
+/// A retardation time in ms, or in µs below 0.1 ms: a term a fit pushed toward zero (in
+/// effect instantaneous compliance) printed as "0.000 ms" looked like a formatting fault.
+fn tau_text(tau_s: f64) -> String {
+    if tau_s >= 1e-4 {
+        format!("{:.3} ms", tau_s * 1e3)
+    } else {
+        format!("{:.3} µs", tau_s * 1e6)
+    }
+}
+
 const PLOT_SIZE: (u32, u32) = (1000, 560);
 
 /// Residuals before/after over time, residual spectra against the floor, data vs models.
@@ -805,16 +815,6 @@ pub fn run_bench(args: BenchArgs) -> anyhow::Result<()> {
         cases[0].recording.len()
     );
     Ok(())
-}
-
-/// A retardation time in ms, or in µs below 0.1 ms: a term a fit pushed toward zero (in
-/// effect instantaneous compliance) printed as "0.000 ms" looked like a formatting fault.
-fn tau_text(tau_s: f64) -> String {
-    if tau_s >= 1e-4 {
-        format!("{:.3} ms", tau_s * 1e3)
-    } else {
-        format!("{:.3} µs", tau_s * 1e6)
-    }
 }
 
 #[cfg(test)]
