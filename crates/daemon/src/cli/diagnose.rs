@@ -17,6 +17,7 @@ use viscoprobe_core::diagnose::model::{DEFAULT_NOMINAL_TERMS, MAX_NOMINAL_TERMS}
 use viscoprobe_core::diagnose::{
     diagnose_with, BasePosition, DiagnoseOptions, Diagnosis, FitSummary, Param, Weighting,
 };
+use viscoprobe_core::prony::{PronySeries, PronyTerm};
 
 #[derive(Debug, Args)]
 pub struct DiagnoseArgs {
@@ -348,6 +349,19 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
     };
     println!("material before: {}", m(&d.before));
     println!("material after:  {}", m(&d.after));
+    let before = unresolved_terms_note(&d.before.material, d.fs_hz);
+    let after = unresolved_terms_note(&d.after.material, d.fs_hz);
+    if before == after {
+        if let Some(note) = before {
+            println!("  (before and after: {note})");
+        }
+    } else {
+        for (when, note) in [("before", before), ("after", after)] {
+            if let Some(note) = note {
+                println!("  ({when}: {note})");
+            }
+        }
+    }
     // A power-law tip has no radius or angle: its moduli are read against the declared tip.
     if let Some(depth) = sig
         .iter()
@@ -444,6 +458,31 @@ fn tau_text(tau_s: f64) -> String {
     } else {
         format!("{:.3} µs", tau_s * 1e6)
     }
+}
+
+/// A note on the retardation times a recording sampled at `fs_hz` cannot resolve, or `None`
+/// where it resolves them all. A term faster than one sample period has crept fully before
+/// the next sample: the recording sees it as part of the instantaneous compliance, so its τ
+/// is not a measurement (the fit may put it anywhere below a sample), and the instantaneous
+/// modulus the recording does measure is `1/(J0 − Σ Ji)` over the resolved terms only.
+fn unresolved_terms_note(material: &PronySeries, fs_hz: f64) -> Option<String> {
+    let sample_s = 1.0 / fs_hz;
+    let (fast, resolved): (Vec<&PronyTerm>, Vec<&PronyTerm>) =
+        material.terms.iter().partition(|t| t.tau_s < sample_s);
+    if fast.is_empty() {
+        return None;
+    }
+    let seen = material.j0_per_pa - resolved.iter().map(|t| t.j_per_pa).sum::<f64>();
+    let taus = fast
+        .iter()
+        .map(|t| format!("τ = {}", tau_text(t.tau_s)))
+        .collect::<Vec<_>>()
+        .join(", ");
+    Some(format!(
+        "{taus} is shorter than one sample ({}): not resolved, the recording sees it as instantaneous; E_inst as sampled {:.4} kPa",
+        tau_text(sample_s),
+        1e-3 / seen
+    ))
 }
 
 const PLOT_SIZE: (u32, u32) = (1000, 560);
@@ -828,6 +867,31 @@ mod tests {
         assert_eq!(tau_text(1e-4), "0.100 ms");
         assert_eq!(tau_text(1.5817e-7), "0.158 µs");
         assert_eq!(tau_text(4.74e-5), "47.400 µs");
+    }
+
+    /// A term faster than one sample is named, and the instantaneous modulus is the one the
+    /// samples see: J0 less the resolved terms only. At 8 kHz (125 µs per sample) with
+    /// J0 = 4e-6 /Pa, a resolved 2e-6 /Pa and an unresolved 1e-6 /Pa, that is 1/(2e-6 /Pa).
+    #[test]
+    fn a_retardation_time_below_one_sample_is_flagged() {
+        let term = |j_per_pa, tau_s| PronyTerm { j_per_pa, tau_s };
+        let material = PronySeries {
+            j0_per_pa: 4e-6,
+            terms: vec![term(2e-6, 0.02), term(1e-6, 1.6e-7)],
+        };
+        let note = unresolved_terms_note(&material, 8000.0).expect("one term is unresolved");
+        assert!(
+            note.starts_with("τ = 0.160 µs is shorter than one sample (0.125 ms)"),
+            "{note}"
+        );
+        assert!(note.ends_with("E_inst as sampled 500.0000 kPa"), "{note}");
+        // At 10 MHz the same term is resolved; so is every term at its own sample period.
+        assert_eq!(unresolved_terms_note(&material, 1e7), None);
+        let slow = PronySeries {
+            j0_per_pa: 4e-6,
+            terms: vec![term(2e-6, 1.25e-4)],
+        };
+        assert_eq!(unresolved_terms_note(&slow, 8000.0), None);
     }
 
     fn param(value: f64, ci95: [f64; 2]) -> Param {
