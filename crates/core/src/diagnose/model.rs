@@ -1151,7 +1151,9 @@ impl Problem {
     }
 
     /// What the model of θ says the same drive reads on a rigid reference sample whose
-    /// contact point is the sample's: the deflection (V, no noise, no offset) and whether
+    /// contact point is `contact_offset_nm` beyond the sample's (the format promises the two
+    /// aligned; the diagnosis reads what is left of that alignment as a nuisance,
+    /// [`super::witness::ReferenceWitness::contact_offset_nm`]): the deflection (V, no noise, no offset) and whether
     /// the tip touches the reference, per sample. The instrument's chain is the model's —
     /// the actuator with its gain, dynamics, modes, creep and hysteresis, the detector with
     /// its delay — and nothing of the sample is: no material, tip, film, adhesion or drift
@@ -1164,10 +1166,11 @@ impl Problem {
         spec: &ModelSpec,
         th: &[f64],
         linear: &[f64],
+        contact_offset_nm: f64,
     ) -> Option<(Vec<f64>, Vec<bool>)> {
         let mut cfg = self.start_simulation(spec, th)?;
         cfg.reference = ReferenceConfig {
-            contact_point_nm: cfg.sample.contact_point_nm,
+            contact_point_nm: cfg.sample.contact_point_nm + contact_offset_nm,
             adhesion_nn: None,
         };
         let drive = self.twin_drive(spec, th);

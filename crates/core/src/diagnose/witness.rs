@@ -369,6 +369,11 @@ pub struct ReferenceWitness {
     pub sigma_v: f64,
     /// χ² (train, held-out) of the nominal model's path.
     pub nominal: (f64, f64),
+    /// How far beyond the sample's contact point the reference run touched its sample, nm,
+    /// as every model's reading of the reference assumes it
+    /// ([`super::model::Problem::simulate_reference`]): 0 as built, and the nominal model's
+    /// best reading where the diagnosis finds the reference off the sample's contact point.
+    pub contact_offset_nm: f64,
 }
 
 impl ReferenceWitness {
@@ -397,6 +402,7 @@ impl ReferenceWitness {
             fit,
             sigma_v,
             nominal,
+            contact_offset_nm: 0.0,
         })
     }
 

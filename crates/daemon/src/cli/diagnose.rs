@@ -137,6 +137,7 @@ pub fn diagnosis_json(file: &str, d: &Diagnosis, seconds: f64) -> Value {
         "base_position": d.base_position.id(),
         "sensor_sigma_nm": d.sensor_sigma_nm,
         "reference_sigma_v": d.reference_sigma_v,
+        "reference_contact_offset_nm": d.reference_contact_offset_nm,
         "weighting": d.weighting.id(),
         "cost": {
             "simulations": d.simulations.total(),
@@ -228,6 +229,19 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
             Weighting::Equal => "equally (the floor is white)",
         }
     );
+    if let (Some(sigma), Some(offset)) = (d.reference_sigma_v, d.reference_contact_offset_nm) {
+        let contact = if offset == 0.0 {
+            "its contact point the sample's, as the format promises".to_string()
+        } else {
+            format!(
+                "the nominal twin reads its contact point {offset:+.2} nm beyond the sample's, and every model reads it there (the format promises the two aligned: a misalignment of the runs, or a sample contact point the nominal twin misplaces)"
+            )
+        };
+        println!(
+            "hard reference (reference_deflection_v): σ {:.3} mV; {contact}",
+            sigma * 1e3
+        );
+    }
     let sig: Vec<_> = d.effects.iter().filter(|e| e.significant).collect();
     match d.verdict {
         viscoprobe_core::diagnose::Verdict::Mismatch => {
