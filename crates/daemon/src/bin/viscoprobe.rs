@@ -6,7 +6,7 @@ fn main() -> std::process::ExitCode {
     match dispatch(cli) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", viscoprobe_daemon::output::error_text(&e));
             std::process::ExitCode::FAILURE
         }
     }

@@ -196,12 +196,15 @@ pub fn run_measurement_with(
         } else {
             "failed".into()
         };
-        report.error = Some(format!("{e:#}"));
+        report.error = Some(crate::output::error_text(e));
     }
     report.finish(cfg);
     report.write(dir)?;
     if let Err(e) = plots::write_all(dir, &report) {
-        report.warnings.push(format!("plots not written: {e:#}"));
+        report.warnings.push(format!(
+            "plots not written: {}",
+            crate::output::error_text(&e)
+        ));
         report.write(dir)?;
     }
     result.map(|_| report)

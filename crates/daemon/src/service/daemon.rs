@@ -146,8 +146,8 @@ pub fn main(args: Args) -> std::process::ExitCode {
     match run(args) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
-            tracing::error!("{e:#}");
-            eprintln!("viscoprobed: error: {e:#}");
+            tracing::error!("{}", crate::output::error_text(&e));
+            eprintln!("viscoprobed: error: {}", crate::output::error_text(&e));
             std::process::ExitCode::FAILURE
         }
     }

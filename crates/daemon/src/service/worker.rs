@@ -164,7 +164,7 @@ impl Shared {
         });
         let root = storage::runs_root(self.state_dir());
         let dir = new_run_dir(&root, Path::new(&stem))
-            .map_err(|e| ApiError::new("storage", format!("{e:#}")))?;
+            .map_err(|e| ApiError::new("storage", crate::output::error_text(&e)))?;
         let id = dir
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
@@ -527,7 +527,7 @@ fn execute(shared: &Shared, q: QueuedRun, cancel: Arc<AtomicBool>) {
                 .and_then(|r| r["status"].as_str())
                 .unwrap_or("failed")
                 .to_string();
-            (status, Some(format!("{e:#}")))
+            (status, Some(crate::output::error_text(e)))
         }
     };
     match &error {
