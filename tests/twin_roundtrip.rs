@@ -149,5 +149,31 @@ fn fit_recording_finds_order_and_parameters() {
         assert!(((e - w) / w).abs() < 0.01, "param {i}: {e} vs {w}");
     }
     assert!(fit.nrmse < 0.05, "NRMSE {}", fit.nrmse);
+    assert!(
+        fit.notes.iter().all(|n| !n.contains("missing")),
+        "{:?}",
+        fit.notes
+    );
+
+    // A reference sample dropped in contact (an empty cell, which the format allows in an
+    // optional column) stopped this fit ("data contain a non-finite value"): it is filled
+    // from its neighbours, the fit lands as close, and its notes say where.
+    let mut gapped = rec.clone();
+    let k = fit.prepared.contact_index + 500;
+    gapped.reference_deflection_v.as_mut().unwrap()[k] = f64::NAN;
+    let again = fit_recording(&gapped, Terms::Auto { max: 4 }).expect("fit with a gap");
+    assert_eq!(again.prepared.indentation_source, "reference");
+    for (i, (w, e)) in want.iter().zip(again.estimate.values()).enumerate() {
+        assert!(((e - w) / w).abs() < 0.01, "param {i}: {e} vs {w}");
+    }
+    let row = format!("CSV row {}", k + 2);
+    assert!(
+        again
+            .notes
+            .iter()
+            .any(|n| n.starts_with("reference_deflection_v: 1 of") && n.contains(&row)),
+        "{:?}",
+        again.notes
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -662,6 +662,10 @@ pub fn fit_recording_with(
     terms: Terms,
     refine_deflection: bool,
 ) -> Result<RecordingFit, FitError> {
+    // An optional channel's missing samples (the indentation's reference, say) are filled
+    // from their neighbours, and the notes say where (`recording::gaps`).
+    let (filled, gaps) = crate::recording::gaps::with_gaps_filled(rec);
+    let rec: &Recording = &filled;
     let mut prepared = prepare(rec)?;
     let (u, y, fs) = (&prepared.u, &prepared.y, prepared.fs_hz);
     let len = u.len();
@@ -670,7 +674,7 @@ pub fn fit_recording_with(
         Terms::Auto { max } => (1..=max.max(1)).collect(),
     };
     let sampling = Sampling::FirstOrderHold { fs_hz: fs };
-    let mut notes = Vec::new();
+    let mut notes: Vec<String> = gaps.channels.iter().map(|g| g.to_string()).collect();
     let periodic = detect_periodic(&prepared.drive);
 
     // One pass of order selection over `range` with `fit_order`.

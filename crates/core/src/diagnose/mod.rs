@@ -40,7 +40,7 @@ pub mod witness;
 
 use crate::analysis;
 use crate::prony::PronySeries;
-use crate::recording::{Drive, Recording};
+use crate::recording::{gaps, Drive, Recording};
 use crate::twin::actuator::Actuator;
 use crate::twin::TipConfig;
 use fan::Fan;
@@ -291,6 +291,10 @@ pub struct Diagnosis {
     /// diagnosis read it (`witness::ReferenceWitness::contact_offset_nm`): 0 where the
     /// reference reads the alignment the format promises; `None` without a reference.
     pub reference_contact_offset_nm: Option<f64>,
+    /// What became of the optional channels (`reference_deflection_v`, `measured_height_nm`)
+    /// where the diagnosis did not use them as recorded: missing samples filled or left out
+    /// ([`gaps`]), or a channel not used at all, and why. One plain sentence each.
+    pub channel_notes: Vec<String>,
 }
 
 /// A look-alike of the top-ranked effect: significant on its own, and ranked within
@@ -620,6 +624,8 @@ pub fn diagnose_with(
     if n < 1000 {
         return Err(DiagnoseError::TooShort(n));
     }
+    let (filled, gaps) = gaps::with_gaps_filled(rec);
+    let rec: &Recording = &filled;
     let terms = opts.nominal_terms;
     if !(1..=MAX_NOMINAL_TERMS).contains(&terms) {
         return Err(DiagnoseError::NominalTerms(terms));
@@ -842,7 +848,7 @@ pub fn diagnose_with(
     // reads the nominal's, nothing is refitted.
     let nominal_from_reference_lag = |problem: &Problem, nom: &Fitted| -> Option<Fitted> {
         let n_train = problem.train.len() as f64;
-        let w = reference_witness(problem, rec, nom, fan)?;
+        let w = reference_witness(problem, rec, gaps.filled(gaps::REFERENCE), nom, fan)?;
         let lag = nominal.actuator_lag();
         let (best, gain) = reference_lag(problem, &w, nom, fan)?;
         let pays = gain > n_train.ln();
@@ -915,9 +921,13 @@ pub fn diagnose_with(
     // The stage's height sensor beside a drive it follows reads the piezo's own path: each
     // model's path is scored there too (`witness`).
     let witness = match (base_position, &rec.measured_height_nm) {
-        (BasePosition::Drive | BasePosition::CommandedDisplacement, Some(h)) => {
-            HeightWitness::new(&drive, h, fs, &problem.train, &problem.held)
-        }
+        (BasePosition::Drive | BasePosition::CommandedDisplacement, Some(h)) => HeightWitness::new(
+            &drive,
+            h,
+            fs,
+            &without(&problem.train, gaps.filled(gaps::HEIGHT)),
+            &without(&problem.held, gaps.filled(gaps::HEIGHT)),
+        ),
         _ => None,
     };
     // Where that sensor lags the drive by less than the nominal fit's actuator does, the
@@ -978,7 +988,7 @@ pub fn diagnose_with(
         let mut singles: Vec<(Effect, Fitted)> = vec![];
         let by_reference = reference_supported(
             &problem,
-            reference_witness(&problem, rec, nom, fan).as_ref(),
+            reference_witness(&problem, rec, gaps.filled(gaps::REFERENCE), nom, fan).as_ref(),
             nom,
             &screened,
             fan,
@@ -1194,7 +1204,7 @@ pub fn diagnose_with(
     };
     // The same drive on a hard reference reads the instrument's chain without the sample:
     // each model's reading of it is scored there too (`witness`).
-    let reference = reference_witness(&problem, rec, &nom, fan);
+    let reference = reference_witness(&problem, rec, gaps.filled(gaps::REFERENCE), &nom, fan);
     let reference_chi2 = |f: &Fitted| -> Option<(f64, f64)> {
         let w = reference.as_ref()?;
         Some(
@@ -1459,6 +1469,29 @@ pub fn diagnose_with(
     };
     let (before, after) = (summary(&problem, &nom), summary(&problem, &final_fit));
     let against_floor = against_floor(&problem, &noise, &before, &after);
+    let mut channel_notes: Vec<String> = gaps
+        .channels
+        .iter()
+        .map(|g| match g.removed {
+            true => format!("{g}: not used"),
+            false => format!(
+                "{g} where it is an input, and left out of its χ² where it witnesses the models"
+            ),
+        })
+        .collect();
+    if rec.reference_deflection_v.is_some() && reference.is_none() {
+        channel_notes.push(
+            "reference_deflection_v: not used: the nominal twin's reading of the reference never touches it, or the column reads nothing against that reading (a constant column, or a path without noise)"
+                .to_string(),
+        );
+    }
+    let sensor_witnesses = base_position != BasePosition::HeightSensor;
+    if rec.measured_height_nm.is_some() && sensor_witnesses && witness.is_none() {
+        channel_notes.push(
+            "measured_height_nm: not used: the column reads nothing against the drive (a constant column, or the drive itself without noise)"
+                .to_string(),
+        );
+    }
     Ok(Diagnosis {
         verdict,
         effects: reports,
@@ -1483,6 +1516,7 @@ pub fn diagnose_with(
         sensor_sigma_nm: witness.as_ref().map(|w| w.sigma_nm),
         reference_sigma_v: reference.as_ref().map(|w| w.sigma_v),
         reference_contact_offset_nm: reference.as_ref().map(|w| w.contact_offset_nm),
+        channel_notes,
     })
 }
 
@@ -1876,16 +1910,21 @@ fn chosen_for_refit(
 fn reference_witness(
     problem: &Problem,
     rec: &Recording,
+    missing: &[usize],
     nom: &Fitted,
     fan: &dyn Fan,
 ) -> Option<ReferenceWitness> {
     let column = rec.reference_deflection_v.as_ref()?;
+    let (train, held) = (
+        without(&problem.train, missing),
+        without(&problem.held, missing),
+    );
     let path_at = |offset_nm: f64| {
         problem.simulate_reference(&nom.spec, &nom.theta, &nom.eval.linear, offset_nm)
     };
     let witness_at = |offset_nm: f64| {
         let path = path_at(offset_nm)?;
-        let mut w = ReferenceWitness::new(column, &path, &problem.train, &problem.held)?;
+        let mut w = ReferenceWitness::new(column, &path, &train, &held)?;
         w.contact_offset_nm = offset_nm;
         Some(w)
     };
@@ -1929,6 +1968,15 @@ fn reference_lag(
     let (lo, hi) = least_bracket(&grid, &fan::map(fan, grid.len(), |k| reads(grid[k])))?;
     let best = crate::linalg::golden_max(|l| -reads(l), lo, hi);
     Some((best, reads(nom.theta[lag]) - reads(best)))
+}
+
+/// `rows` (ascending sample indices) without the `missing` ones (ascending too): a witness
+/// scores only the samples its channel recorded (`gaps`).
+fn without(rows: &[usize], missing: &[usize]) -> Vec<usize> {
+    rows.iter()
+        .copied()
+        .filter(|k| missing.binary_search(k).is_err())
+        .collect()
 }
 
 /// The neighbours on `grid` of its point where `values` (one per point) is least, the
@@ -2632,7 +2680,7 @@ mod tests {
         sensor_parts_from_command, split_train_held, BasePosition, DiagnoseOptions, Diagnosis,
         FitOptions, ModelSpec, Verdict,
     };
-    use crate::recording::{Drive, Recording};
+    use crate::recording::{gaps, Drive, Recording};
     use crate::twin::actuator::{BoucWen, Creep};
     use crate::twin::detector::Mains;
     use crate::twin::TwinConfig;
@@ -2920,7 +2968,7 @@ mod tests {
             max_step: 1.0,
         };
         let nom = fit_model(&problem, &spec, &[truth], opts, &Serial).unwrap();
-        let w = reference_witness(&problem, &rec, &nom, &Serial).unwrap();
+        let w = reference_witness(&problem, &rec, &[], &nom, &Serial).unwrap();
         let lag = spec.actuator_lag();
         let mut reads = vec![];
         for start in [2.0, 0.05] {
@@ -2956,6 +3004,61 @@ mod tests {
         let d = diagnose(&with_reference(&twin), &corpus_options()).unwrap();
         assert_eq!(d.reference_contact_offset_nm, Some(0.0));
         assert_eq!(d.verdict, Verdict::None, "{:?}", d.effects[0]);
+    }
+
+    /// One missing sample in the reference column (an empty cell, which the format allows in
+    /// an optional column): the reference still witnesses, scored without that sample, and
+    /// the diagnosis says so. It used to drop the whole column, silently: an independent
+    /// simulator's delay beside a height sensor lost its verdict to one empty cell.
+    #[test]
+    fn a_missing_reference_sample_leaves_the_reference_in_use() {
+        let mut rec = with_reference(&nominal_twin(41));
+        let whole = diagnose(&rec, &corpus_options()).unwrap();
+        assert!(whole.channel_notes.is_empty(), "{:?}", whole.channel_notes);
+        rec.reference_deflection_v.as_mut().unwrap()[700] = f64::NAN;
+        let d = diagnose(&rec, &corpus_options()).unwrap();
+        let (with, without) = (
+            whole.reference_sigma_v.unwrap(),
+            d.reference_sigma_v.unwrap(),
+        );
+        assert!(
+            (without / with - 1.0).abs() < 0.01,
+            "σ {with} V → {without} V"
+        );
+        assert_eq!(d.verdict, whole.verdict);
+        assert_eq!(d.channel_notes.len(), 1, "{:?}", d.channel_notes);
+        let note = &d.channel_notes[0];
+        assert_eq!(
+            note,
+            "reference_deflection_v: 1 of 25000 samples missing (the first at t = 0.1400 s, CSV row 702): filled by linear interpolation where it is an input, and left out of its χ² where it witnesses the models"
+        );
+    }
+
+    /// A channel mostly missing is not made up: it is removed, and named; the rest of the
+    /// recording is untouched.
+    #[test]
+    fn a_channel_mostly_missing_is_removed_and_named() {
+        let mut rec = with_reference(&nominal_twin(41));
+        let n = rec.len();
+        let column = rec.reference_deflection_v.as_mut().unwrap();
+        for v in column.iter_mut().step_by(10) {
+            *v = f64::NAN;
+        }
+        let (filled, gaps) = gaps::with_gaps_filled(&rec);
+        assert_eq!(filled.reference_deflection_v, None);
+        assert_eq!(filled.deflection_v, rec.deflection_v);
+        assert!(gaps.filled(gaps::REFERENCE).is_empty());
+        let [gap] = &gaps.channels[..] else {
+            panic!("{gaps:?}")
+        };
+        assert!(gap.removed);
+        assert_eq!(
+            gap.to_string(),
+            format!(
+                "reference_deflection_v: left out: {} of {n} samples missing, more than the 5 % dropped samples account for",
+                n.div_ceil(10)
+            )
+        );
     }
 
     /// A scanner mode shows on the hard reference as on the sample: the reference's reading

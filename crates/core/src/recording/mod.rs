@@ -24,10 +24,13 @@
 //! defaults to 0.5 with a warning (the spec does not mark it required); TOML integers are
 //! accepted for floats; optional and extra columns may hold `NaN`, `inf` or an empty cell (read
 //! as `NaN`), only the required columns must be finite; a wrong sample rate is reported once
-//! against the median time step before single uneven steps are looked for.
+//! against the median time step before single uneven steps are looked for. The users of a
+//! recording fill such gaps in the optional channels with [`gaps::with_gaps_filled`], which
+//! says where it did.
 
 mod csv;
 mod error;
+pub mod gaps;
 mod sidecar;
 
 use std::io::{Read, Write};

@@ -138,6 +138,7 @@ pub fn diagnosis_json(file: &str, d: &Diagnosis, seconds: f64) -> Value {
         "sensor_sigma_nm": d.sensor_sigma_nm,
         "reference_sigma_v": d.reference_sigma_v,
         "reference_contact_offset_nm": d.reference_contact_offset_nm,
+        "channel_notes": d.channel_notes,
         "weighting": d.weighting.id(),
         "cost": {
             "simulations": d.simulations.total(),
@@ -229,6 +230,9 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
             Weighting::Equal => "equally (the floor is white)",
         }
     );
+    for note in &d.channel_notes {
+        println!("channel: {note}");
+    }
     if let (Some(sigma), Some(offset)) = (d.reference_sigma_v, d.reference_contact_offset_nm) {
         let contact = if offset == 0.0 {
             "its contact point the sample's, as the format promises".to_string()
