@@ -55,12 +55,32 @@ use thiserror::Error;
 pub enum FitError {
     #[error("no contact found: the force never leaves the baseline noise ({noise_n:.3e} N rms)")]
     NoContact { noise_n: f64 },
+    #[error("no contact found: the force never rises out of the baseline noise ({noise_n:.3e} N rms), yet falls {drop_n:.3e} N below it; recording/1 counts deflection positive when the tip is pushed away from the sample: is the deflection channel's sign inverted?")]
+    InvertedDeflection { noise_n: f64, drop_n: f64 },
     #[error("the recording has no drive in nm and no position sensor: set [piezo] gain_nm_per_v or record a reference channel")]
     NoIndentation,
     #[error("the in-contact window has only {0} samples")]
     TooShort(usize),
     #[error("estimation: {0}")]
     Estimate(#[from] EstimateError),
+}
+
+/// Below the baseline by this many noise σ, a force that never rises above it is a
+/// deflection channel of the wrong sign rather than no contact.
+const INVERTED_SIGMAS: f64 = 20.0;
+
+/// The error of a force that never rises out of the baseline noise `noise_n`: a sign
+/// inverted where it falls far below it instead ([`INVERTED_SIGMAS`]), no contact otherwise.
+fn no_contact(force: &[f64], noise_n: f64) -> FitError {
+    let lowest = force.iter().copied().fold(0.0f64, f64::min);
+    if -lowest > INVERTED_SIGMAS * noise_n {
+        FitError::InvertedDeflection {
+            noise_n,
+            drop_n: -lowest,
+        }
+    } else {
+        FitError::NoContact { noise_n }
+    }
 }
 
 /// The in-contact (u, y) pair of a recording.
@@ -199,13 +219,10 @@ pub fn prepare(rec: &Recording) -> Result<Prepared, FitError> {
         let fmax = force.iter().copied().fold(f64::NEG_INFINITY, f64::max);
         let threshold = (5.0 * k * c_m * bl.noise).max(0.02 * fmax);
         let imax = force.iter().position(|f| *f == fmax).unwrap_or(0);
-        let above =
-            force[..=imax]
-                .iter()
-                .position(|f| *f > threshold)
-                .ok_or(FitError::NoContact {
-                    noise_n: k * c_m * bl.noise,
-                })?;
+        let above = force[..=imax]
+            .iter()
+            .position(|f| *f > threshold)
+            .ok_or_else(|| no_contact(&force, k * c_m * bl.noise))?;
         // Walk back to where the force last sat within the baseline noise: the window starts
         // there, at rest (the fit's initial state), so a force step at the next sample is in
         // the window.

@@ -87,6 +87,10 @@ pub enum DiagnoseError {
         "no contact found: the deflection never leaves its baseline noise ({noise_v:.3e} V rms)"
     )]
     NoContact { noise_v: f64 },
+    #[error(
+        "no contact found: the deflection never rises out of its baseline noise ({noise_v:.3e} V rms), yet falls {drop_v:.3e} V below it; recording/1 counts deflection positive when the tip is pushed away from the sample: is the deflection channel's sign inverted?"
+    )]
+    InvertedDeflection { noise_v: f64, drop_v: f64 },
     #[error("the recording has only {0} samples; a diagnosis needs at least 1000")]
     TooShort(usize),
     #[error("the nominal twin could not be fitted to this recording (no start gave a finite simulation)")]
@@ -520,6 +524,10 @@ fn sensor_parts_from_command(command_nm: &[f64], sensor_nm: &[f64]) -> bool {
     widest > SENSOR_PARTS_FROM_COMMAND * (hi - lo)
 }
 
+/// Below the baseline by this many noise σ, a deflection that never rises above it is of the
+/// wrong sign rather than out of contact.
+const INVERTED_SIGMAS: f64 = 20.0;
+
 /// First contact: where the deflection leaves the free baseline for good, walked back to the
 /// last sample within the noise.
 fn find_contact(y: &[f64]) -> Result<(usize, f64, f64), DiagnoseError> {
@@ -533,10 +541,18 @@ fn find_contact(y: &[f64]) -> Result<(usize, f64, f64), DiagnoseError> {
     let sigma = (1.4826 * dev[dev.len() / 2]).max(1e-12);
     let top = y.iter().copied().fold(f64::NEG_INFINITY, f64::max);
     let thr = (8.0 * sigma).max(0.05 * (top - base));
-    let above = y
-        .iter()
-        .position(|x| x - base > thr)
-        .ok_or(DiagnoseError::NoContact { noise_v: sigma })?;
+    let Some(above) = y.iter().position(|x| x - base > thr) else {
+        // As the offline fitter's `analysis::no_contact`.
+        let drop_v = base - y.iter().copied().fold(base, f64::min);
+        return Err(if drop_v > INVERTED_SIGMAS * sigma {
+            DiagnoseError::InvertedDeflection {
+                noise_v: sigma,
+                drop_v,
+            }
+        } else {
+            DiagnoseError::NoContact { noise_v: sigma }
+        });
+    };
     let contact = y[..above]
         .iter()
         .rposition(|x| x - base <= 2.0 * sigma)
@@ -3032,6 +3048,31 @@ mod tests {
             note,
             "reference_deflection_v: 1 of 25000 samples missing (the first at t = 0.1400 s, CSV row 702): filled by linear interpolation where it is an input, and left out of its χ² where it witnesses the models"
         );
+    }
+
+    /// A deflection recorded with the wrong sign never rises out of its baseline but falls
+    /// far below it: the diagnosis and the offline fit say so, where they said "no contact
+    /// found: the deflection never leaves its baseline noise". Noise alone is still "no
+    /// contact".
+    #[test]
+    fn an_inverted_deflection_is_named_as_such() {
+        use super::DiagnoseError;
+        use crate::analysis::{fit_recording, FitError, Terms};
+        let (drive_v, _) = protocol_drive(FS_HZ);
+        let mut rec = simulate(&nominal_twin(41), &drive_v, FS_HZ, None);
+        let n = rec.len();
+        let head: Vec<f64> = rec.deflection_v[..500].to_vec();
+        rec.deflection_v.iter_mut().for_each(|v| *v = -*v);
+        let e = diagnose(&rec, &corpus_options()).unwrap_err();
+        assert!(matches!(e, DiagnoseError::InvertedDeflection { .. }), "{e}");
+        assert!(e.to_string().contains("sign inverted"), "{e}");
+        let e = fit_recording(&rec, Terms::Fixed(2)).unwrap_err();
+        assert!(matches!(e, FitError::InvertedDeflection { .. }), "{e}");
+        rec.deflection_v = (0..n).map(|k| head[k % head.len()]).collect();
+        let e = diagnose(&rec, &corpus_options()).unwrap_err();
+        assert!(matches!(e, DiagnoseError::NoContact { .. }), "{e}");
+        let e = fit_recording(&rec, Terms::Fixed(2)).unwrap_err();
+        assert!(matches!(e, FitError::NoContact { .. }), "{e}");
     }
 
     /// A channel mostly missing is not made up: it is removed, and named; the rest of the
