@@ -367,8 +367,9 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
     };
     println!("material before: {}", m(&d.before));
     println!("material after:  {}", m(&d.after));
-    let before = unresolved_terms_note(&d.before.material, d.fs_hz);
-    let after = unresolved_terms_note(&d.after.material, d.fs_hz);
+    let record_s = d.recorded_v.len() as f64 / d.fs_hz;
+    let before = unresolved_terms_note(&d.before.material, d.fs_hz, record_s);
+    let after = unresolved_terms_note(&d.after.material, d.fs_hz, record_s);
     if before == after {
         if let Some(note) = before {
             println!("  (before and after: {note})");
@@ -468,39 +469,64 @@ fn interval_text(p: &Param) -> String {
     format!(" (95 % [{lo:.4e}, {hi:.4e}])")
 }
 
-/// A retardation time in ms, or in µs below 0.1 ms: a term a fit pushed toward zero (in
-/// effect instantaneous compliance) printed as "0.000 ms" looked like a formatting fault.
+/// A retardation time in ms, in µs below 0.1 ms and in s from 1 s: a term a fit pushed
+/// toward zero (in effect instantaneous compliance) printed as "0.000 ms" looked like a
+/// formatting fault, and one far beyond the record as "229013.456 ms" took counting.
 fn tau_text(tau_s: f64) -> String {
-    if tau_s >= 1e-4 {
+    if tau_s >= 1.0 {
+        format!("{tau_s:.3} s")
+    } else if tau_s >= 1e-4 {
         format!("{:.3} ms", tau_s * 1e3)
     } else {
         format!("{:.3} µs", tau_s * 1e6)
     }
 }
 
-/// A note on the retardation times a recording sampled at `fs_hz` cannot resolve, or `None`
-/// where it resolves them all. A term faster than one sample period has crept fully before
-/// the next sample: the recording sees it as part of the instantaneous compliance, so its τ
-/// is not a measurement (the fit may put it anywhere below a sample), and the instantaneous
-/// modulus the recording does measure is `1/(J0 − Σ Ji)` over the resolved terms only.
-fn unresolved_terms_note(material: &PronySeries, fs_hz: f64) -> Option<String> {
+/// A note on the retardation times a record of `record_s` sampled at `fs_hz` cannot
+/// resolve, or `None` where it resolves them all.
+///
+/// A term faster than one sample period has crept fully before the next sample: the
+/// recording sees it as part of the instantaneous compliance, so its τ is not a measurement
+/// (the fit may put it anywhere below a sample), and the instantaneous modulus the recording
+/// does measure is `1/(J0 − Σ Ji)` over the resolved terms only. A term slower than the
+/// record has barely begun to creep by its end: its τ and Ji trade against each other, and
+/// the relaxed modulus `1/J0` extrapolates them; the modulus at the record's end,
+/// `1/J(record)`, is what the record measured.
+fn unresolved_terms_note(material: &PronySeries, fs_hz: f64, record_s: f64) -> Option<String> {
     let sample_s = 1.0 / fs_hz;
+    let taus = |terms: &[&PronyTerm]| {
+        terms
+            .iter()
+            .map(|t| format!("τ = {}", tau_text(t.tau_s)))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
     let (fast, resolved): (Vec<&PronyTerm>, Vec<&PronyTerm>) =
         material.terms.iter().partition(|t| t.tau_s < sample_s);
-    if fast.is_empty() {
-        return None;
-    }
-    let seen = material.j0_per_pa - resolved.iter().map(|t| t.j_per_pa).sum::<f64>();
-    let taus = fast
+    let slow: Vec<&PronyTerm> = material
+        .terms
         .iter()
-        .map(|t| format!("τ = {}", tau_text(t.tau_s)))
-        .collect::<Vec<_>>()
-        .join(", ");
-    Some(format!(
-        "{taus} is shorter than one sample ({}): not resolved, the recording sees it as instantaneous; E_inst as sampled {:.4} kPa",
-        tau_text(sample_s),
-        1e-3 / seen
-    ))
+        .filter(|t| t.tau_s > record_s)
+        .collect();
+    let mut parts = vec![];
+    if !fast.is_empty() {
+        let seen = material.j0_per_pa - resolved.iter().map(|t| t.j_per_pa).sum::<f64>();
+        parts.push(format!(
+            "{}: shorter than one sample ({}), not resolved: the recording sees it as instantaneous; E_inst as sampled {:.4} kPa",
+            taus(&fast),
+            tau_text(sample_s),
+            1e-3 / seen
+        ));
+    }
+    if !slow.is_empty() {
+        parts.push(format!(
+            "{}: longer than the record ({}), not resolved: E_relaxed extrapolates it; at the record's end the modulus is {:.4} kPa",
+            taus(&slow),
+            tau_text(record_s),
+            1e-3 / material.creep_compliance(record_s)
+        ));
+    }
+    (!parts.is_empty()).then(|| parts.join("; "))
 }
 
 const PLOT_SIZE: (u32, u32) = (1000, 560);
@@ -885,31 +911,43 @@ mod tests {
         assert_eq!(tau_text(1e-4), "0.100 ms");
         assert_eq!(tau_text(1.5817e-7), "0.158 µs");
         assert_eq!(tau_text(4.74e-5), "47.400 µs");
+        assert_eq!(tau_text(0.999_5), "999.500 ms");
+        assert_eq!(tau_text(1.0), "1.000 s");
+        assert_eq!(tau_text(229.013_456), "229.013 s");
     }
 
     /// A term faster than one sample is named, and the instantaneous modulus is the one the
     /// samples see: J0 less the resolved terms only. At 8 kHz (125 µs per sample) with
     /// J0 = 4e-6 /Pa, a resolved 2e-6 /Pa and an unresolved 1e-6 /Pa, that is 1/(2e-6 /Pa).
+    /// A term slower than the record is named too, with the modulus at the record's end.
     #[test]
-    fn a_retardation_time_below_one_sample_is_flagged() {
+    fn retardation_times_beyond_the_record_are_flagged() {
         let term = |j_per_pa, tau_s| PronyTerm { j_per_pa, tau_s };
         let material = PronySeries {
             j0_per_pa: 4e-6,
             terms: vec![term(2e-6, 0.02), term(1e-6, 1.6e-7)],
         };
-        let note = unresolved_terms_note(&material, 8000.0).expect("one term is unresolved");
-        assert!(
-            note.starts_with("τ = 0.160 µs is shorter than one sample (0.125 ms)"),
-            "{note}"
+        assert_eq!(
+            unresolved_terms_note(&material, 8000.0, 2.5).as_deref(),
+            Some("τ = 0.160 µs: shorter than one sample (0.125 ms), not resolved: the recording sees it as instantaneous; E_inst as sampled 500.0000 kPa")
         );
-        assert!(note.ends_with("E_inst as sampled 500.0000 kPa"), "{note}");
-        // At 10 MHz the same term is resolved; so is every term at its own sample period.
-        assert_eq!(unresolved_terms_note(&material, 1e7), None);
+        // At 10 MHz the same term is resolved; so is a term at its own sample period.
+        assert_eq!(unresolved_terms_note(&material, 1e7, 2.5), None);
+        let edges = PronySeries {
+            j0_per_pa: 4e-6,
+            terms: vec![term(2e-6, 1.25e-4), term(1e-6, 2.5)],
+        };
+        assert_eq!(unresolved_terms_note(&edges, 8000.0, 2.5), None);
+        // 100 s behind a 10 s record: J(10 s) = 4e-6 − 2e-6·e^(−0.1) /Pa.
         let slow = PronySeries {
             j0_per_pa: 4e-6,
-            terms: vec![term(2e-6, 1.25e-4)],
+            terms: vec![term(2e-6, 100.0)],
         };
-        assert_eq!(unresolved_terms_note(&slow, 8000.0), None);
+        let at_end = 1e-3 / (4e-6 - 2e-6 * (-0.1f64).exp());
+        assert_eq!(
+            unresolved_terms_note(&slow, 8000.0, 10.0),
+            Some(format!("τ = 100.000 s: longer than the record (10.000 s), not resolved: E_relaxed extrapolates it; at the record's end the modulus is {at_end:.4} kPa"))
+        );
     }
 
     fn param(value: f64, ci95: [f64; 2]) -> Param {
