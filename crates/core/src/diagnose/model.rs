@@ -25,7 +25,13 @@ use nalgebra::{DMatrix, DVector};
 use std::borrow::Cow;
 
 /// One closed-form regressor: the column, and the column whitened.
-type Regressor<'a> = (Cow<'a, [f64]>, Cow<'a, [f64]>);
+/// A column of the closed-form part: raw, whitened, and its index among the
+/// [`FixedColumns`] where it is one of them.
+struct Regressor<'a> {
+    raw: Cow<'a, [f64]>,
+    white: Cow<'a, [f64]>,
+    fixed: Option<usize>,
+}
 
 /// One catalog effect, as a module of the twin.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -357,6 +363,43 @@ pub(crate) const SURFACE_DRIFT_SCALE_NM_PER_S: f64 = 1.0;
 /// Harmonics of the mains line that `mains_interference` in its harmonic form fits, the
 /// line itself counted as the first. The noise floor removes the same ones.
 pub(crate) const MAINS_HARMONICS: usize = 3;
+
+/// The regressors every model draws from, which no parameter moves: raw and whitened, and
+/// what [`Problem::evaluate`]'s normal equations need of them on the train samples, computed
+/// once rather than at every evaluation (a model with the mains' three harmonics has seven
+/// such columns, whose 28 products over the train samples cost as much as half a twin
+/// simulation). Each is computed with the very operations `evaluate` would use, in the same
+/// order, so a model's fit is the same to the bit.
+#[derive(Debug, Default)]
+pub struct FixedColumns {
+    /// Raw and whitened, in [`FixedColumn::index`] order.
+    columns: Vec<(Vec<f64>, Vec<f64>)>,
+    /// The whitened column's norm over the train samples.
+    norms: Vec<f64>,
+    /// The whitened column over its norm, on the train samples (in their order).
+    scaled: Vec<Vec<f64>>,
+    /// `gram[a][b]`: the normal equations' entry of column `a` before column `b`.
+    gram: Vec<Vec<f64>>,
+}
+
+/// The norm of column `c` over the `train` samples, as the normal equations scale it.
+fn train_norm(c: &[f64], train: &[usize]) -> f64 {
+    train
+        .iter()
+        .map(|&i| c[i] * c[i])
+        .sum::<f64>()
+        .sqrt()
+        .max(1e-300)
+}
+
+/// The normal equations' entry of a column before column `b`: the former scaled over the
+/// train samples (`scaled_a`), the latter whitened with its norm `norm_b`.
+fn gram_entry(scaled_a: &[f64], b: &[f64], norm_b: f64, train: &[usize]) -> f64 {
+    scaled_a
+        .iter()
+        .zip(train)
+        .fold(0.0, |s, (xa, &i)| s + xa * b[i] / norm_b)
+}
 
 /// The regressors every model draws from ([`Problem::fixed_columns`]).
 #[derive(Debug, Clone, Copy)]
@@ -817,8 +860,9 @@ pub struct Problem {
     pub mains_hz: f64,
     /// Lowest frequency at which the noise floor was measured, Hz.
     pub floor_from_hz: f64,
-    /// Offset, time and mains columns, raw and whitened (see `fixed_columns`); leave empty.
-    pub fixed_columns: std::sync::OnceLock<Vec<(Vec<f64>, Vec<f64>)>>,
+    /// Offset, time and mains columns, and their normal equations (see `fixed_columns`);
+    /// leave empty.
+    pub fixed_columns: std::sync::OnceLock<FixedColumns>,
     /// The drive's spectrum, line taken out (see [`DriveSpectrum`]); leave empty.
     pub drive_spectrum: std::sync::OnceLock<DriveSpectrum>,
     /// Twin simulations run so far (the cost of a diagnosis); leave at zero.
@@ -1224,20 +1268,42 @@ impl Problem {
     /// the cosine and sine of each mains harmonic (see [`FixedColumn`]) — raw and whitened,
     /// computed on first use: every evaluation needs them, whitening them each time would
     /// cost as much as a fifth of a twin simulation.
-    fn fixed_columns(&self) -> &[(Vec<f64>, Vec<f64>)] {
+    fn fixed_columns(&self) -> &FixedColumns {
         self.fixed_columns.get_or_init(|| {
             let col = |f: &dyn Fn(f64) -> f64| {
                 let c: Vec<f64> = self.t_s.iter().map(|&t| f(t)).collect();
                 let wc = self.whiten(&c);
                 (c, wc)
             };
-            let mut cols = vec![col(&|_| 1.0), col(&|t| t), col(&|t| t * t)];
+            let mut columns = vec![col(&|_| 1.0), col(&|t| t), col(&|t| t * t)];
             for h in 1..=MAINS_HARMONICS {
                 let w = 2.0 * std::f64::consts::PI * self.mains_hz * h as f64;
-                cols.push(col(&|t| (w * t).cos()));
-                cols.push(col(&|t| (w * t).sin()));
+                columns.push(col(&|t| (w * t).cos()));
+                columns.push(col(&|t| (w * t).sin()));
             }
-            cols
+            let train = &self.train;
+            let norms: Vec<f64> = columns.iter().map(|c| train_norm(&c.1, train)).collect();
+            let scaled: Vec<Vec<f64>> = columns
+                .iter()
+                .zip(&norms)
+                .map(|(c, n)| train.iter().map(|&i| c.1[i] / n).collect())
+                .collect();
+            let gram = scaled
+                .iter()
+                .map(|sa| {
+                    columns
+                        .iter()
+                        .zip(&norms)
+                        .map(|(b, &nb)| gram_entry(sa, &b.1, nb, train))
+                        .collect()
+                })
+                .collect();
+            FixedColumns {
+                columns,
+                norms,
+                scaled,
+                gram,
+            }
         })
     }
 
@@ -1267,12 +1333,20 @@ impl Problem {
     fn regressors(&self, spec: &ModelSpec, sim: &Simulation) -> Vec<Regressor<'_>> {
         let fixed = self.fixed_columns();
         let borrowed = |c: FixedColumn| {
-            let (raw, white) = &fixed[c.index()];
-            (Cow::Borrowed(&raw[..]), Cow::Borrowed(&white[..]))
+            let (raw, white) = &fixed.columns[c.index()];
+            Regressor {
+                raw: Cow::Borrowed(&raw[..]),
+                white: Cow::Borrowed(&white[..]),
+                fixed: Some(c.index()),
+            }
         };
         let owned = |c: Vec<f64>| {
             let wc = self.whiten(&c);
-            (Cow::Owned(c), Cow::Owned(wc))
+            Regressor {
+                raw: Cow::Owned(c),
+                white: Cow::Owned(wc),
+                fixed: None,
+            }
         };
         let mut cols = vec![borrowed(FixedColumn::Offset)];
         for &e in &spec.effects {
@@ -1355,30 +1429,40 @@ impl Problem {
             .zip(&sim.clean_v)
             .map(|(y, m)| y - m)
             .collect();
-        let (cols, wcols): (Vec<_>, Vec<_>) = self.regressors(spec, &sim).into_iter().unzip();
+        let regs = self.regressors(spec, &sim);
+        let fixed = self.fixed_columns();
         let wr = self.whiten(&r0);
-        let m = cols.len();
-        // Normal equations on the train rows, columns scaled to unit norm for conditioning.
-        let norms: Vec<f64> = wcols
+        let m = regs.len();
+        let train = &self.train;
+        // Normal equations on the train rows, columns scaled to unit norm for conditioning;
+        // the fixed columns' part from `FixedColumns`, computed alike.
+        let norms: Vec<f64> = regs
             .iter()
-            .map(|c| {
-                self.train
-                    .iter()
-                    .map(|&i| c[i] * c[i])
-                    .sum::<f64>()
-                    .sqrt()
-                    .max(1e-300)
+            .map(|r| {
+                r.fixed
+                    .map_or_else(|| train_norm(&r.white, train), |f| fixed.norms[f])
+            })
+            .collect();
+        let scaled: Vec<Cow<'_, [f64]>> = regs
+            .iter()
+            .zip(&norms)
+            .map(|(r, n)| match r.fixed {
+                Some(f) => Cow::Borrowed(&fixed.scaled[f][..]),
+                None => Cow::Owned(train.iter().map(|&i| r.white[i] / n).collect()),
             })
             .collect();
         let mut ata = DMatrix::<f64>::zeros(m, m);
         let mut atb = DVector::<f64>::zeros(m);
-        for &i in &self.train {
-            for a in 0..m {
-                let xa = wcols[a][i] / norms[a];
-                atb[a] += xa * wr[i];
-                for b in a..m {
-                    ata[(a, b)] += xa * wcols[b][i] / norms[b];
-                }
+        for a in 0..m {
+            atb[a] = scaled[a]
+                .iter()
+                .zip(train)
+                .fold(0.0, |s, (xa, &i)| s + xa * wr[i]);
+            for b in a..m {
+                ata[(a, b)] = match (regs[a].fixed, regs[b].fixed) {
+                    (Some(fa), Some(fb)) => fixed.gram[fa][fb],
+                    _ => gram_entry(&scaled[a], &regs[b].white, norms[b], train),
+                };
             }
         }
         for a in 0..m {
@@ -1396,12 +1480,10 @@ impl Problem {
             .collect();
         let mut residual_v = r0;
         let mut wres = wr;
-        for (a, c) in cols.iter().enumerate() {
-            for (k, r) in residual_v.iter_mut().enumerate() {
-                *r -= linear[a] * c[k];
-            }
-            for (k, r) in wres.iter_mut().enumerate() {
-                *r -= linear[a] * wcols[a][k];
+        for (k, (r, w)) in residual_v.iter_mut().zip(wres.iter_mut()).enumerate() {
+            for (c, reg) in linear.iter().zip(&regs) {
+                *r -= c * reg.raw[k];
+                *w -= c * reg.white[k];
             }
         }
         let s = self.sigma_w_v;
