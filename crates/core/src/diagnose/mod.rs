@@ -1489,7 +1489,7 @@ pub fn diagnose_with(
         .channels
         .iter()
         .map(|g| match g.removed {
-            true => format!("{g}: not used"),
+            true => g.to_string(),
             false => format!(
                 "{g} where it is an input, and left out of its χ² where it witnesses the models"
             ),

@@ -79,17 +79,17 @@ impl ChannelGaps {
     }
 }
 
-/// `column` with its missing (non-finite) values filled by linear interpolation between the
-/// nearest finite values on either side (the nearest one, at the ends), and the indices that
-/// were missing; `None` when no value is finite or more than [`MAX_MISSING_FRACTION`] are
-/// missing.
-pub fn fill_gaps(column: &[f64]) -> Option<(Vec<f64>, Vec<usize>)> {
-    let missing: Vec<usize> = (0..column.len())
+/// The samples (indices, ascending) of `column` that are missing: not finite.
+pub fn missing_samples(column: &[f64]) -> Vec<usize> {
+    (0..column.len())
         .filter(|&k| !column[k].is_finite())
-        .collect();
-    if missing.is_empty() {
-        return Some((column.to_vec(), missing));
-    }
+        .collect()
+}
+
+/// `column` with its `missing` samples ([`missing_samples`]) filled by linear interpolation
+/// between the nearest finite values on either side (the nearest one, at the ends); `None`
+/// when more than [`MAX_MISSING_FRACTION`] are missing, or no value is finite.
+pub fn fill_gaps(column: &[f64], missing: &[usize]) -> Option<Vec<f64>> {
     if missing.len() as f64 > MAX_MISSING_FRACTION * column.len() as f64 {
         return None;
     }
@@ -114,7 +114,7 @@ pub fn fill_gaps(column: &[f64]) -> Option<(Vec<f64>, Vec<usize>)> {
         }
         k = end;
     }
-    Some((filled, missing))
+    Some(filled)
 }
 
 /// `rec` with the missing values of its optional channels filled ([`fill_gaps`]), or the
@@ -124,11 +124,9 @@ pub fn with_gaps_filled(rec: &Recording) -> (Cow<'_, Recording>, ChannelGaps) {
     let t0 = rec.time_s.first().copied().unwrap_or(0.0);
     let treat = |channel: &'static str, column: Option<&Vec<f64>>| {
         let column = column?;
-        let missing: Vec<usize> = (0..column.len())
-            .filter(|&k| !column[k].is_finite())
-            .collect();
+        let missing = missing_samples(column);
         let first = *missing.first()?;
-        let filled = fill_gaps(column).map(|f| f.0);
+        let filled = fill_gaps(column, &missing);
         let gap = ChannelGap {
             channel,
             samples: column.len(),
@@ -162,7 +160,7 @@ mod tests {
     use super::*;
 
     /// Gaps inside are interpolated, gaps at an end take the nearest value, and the
-    /// indices that were missing are returned.
+    /// missing samples are listed.
     #[test]
     fn gaps_are_filled_linearly_and_listed() {
         let nan = f64::NAN;
@@ -171,15 +169,17 @@ mod tests {
         x[10] = nan;
         x[11] = f64::INFINITY;
         x[99] = nan;
-        let (filled, missing) = fill_gaps(&x).unwrap();
+        let missing = missing_samples(&x);
         assert_eq!(missing, vec![0, 10, 11, 99]);
+        let filled = fill_gaps(&x, &missing).unwrap();
         assert_eq!(filled[0], 1.0);
         assert_eq!((filled[10], filled[11]), (10.0, 11.0));
         assert_eq!(filled[99], 98.0);
         assert!(filled.iter().all(|v| v.is_finite()));
         // Nothing missing: the column as it was.
         let clean: Vec<f64> = (0..100).map(|k| k as f64 * 0.5).collect();
-        assert_eq!(fill_gaps(&clean), Some((clean.clone(), vec![])));
+        assert!(missing_samples(&clean).is_empty());
+        assert_eq!(fill_gaps(&clean, &[]), Some(clean.clone()));
     }
 
     /// More than 5 % missing, or nothing at all there: not filled.
@@ -189,9 +189,9 @@ mod tests {
         for v in x.iter_mut().take(6) {
             *v = f64::NAN;
         }
-        assert_eq!(fill_gaps(&x), None);
+        assert_eq!(fill_gaps(&x, &missing_samples(&x)), None);
         x[5] = 1.0;
-        assert!(fill_gaps(&x).is_some());
-        assert_eq!(fill_gaps(&[f64::NAN]), None);
+        assert!(fill_gaps(&x, &missing_samples(&x)).is_some());
+        assert_eq!(fill_gaps(&[f64::NAN], &[0]), None);
     }
 }
