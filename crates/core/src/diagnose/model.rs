@@ -24,7 +24,6 @@ use crate::twin::{
 use nalgebra::{DMatrix, DVector};
 use std::borrow::Cow;
 
-/// One closed-form regressor: the column, and the column whitened.
 /// A column of the closed-form part: raw, whitened, and its index among the
 /// [`FixedColumns`] where it is one of them.
 struct Regressor<'a> {
