@@ -60,7 +60,7 @@ use noise::NoiseModel;
 use serde::Serialize;
 use std::sync::OnceLock;
 use thiserror::Error;
-use witness::{HeightWitness, ReferenceWitness};
+use witness::{HeightWitness, ReferencePath, ReferenceWitness};
 
 /// The catalog of physics a nominal twin may have left out, by their exact report ids.
 pub const CATALOG: [&str; 12] = [
@@ -862,9 +862,14 @@ pub fn diagnose_with(
     // record: 4.7 χ² units worse on train, 4312 better held out, and named nothing). Where the
     // reference reads no lag better than the nominal's by one parameter's BIC price, or
     // reads the nominal's, nothing is refitted.
+    let references = ReferenceWitnesses {
+        rec,
+        missing: gaps.filled(gaps::REFERENCE),
+        built: Default::default(),
+    };
     let nominal_from_reference_lag = |problem: &Problem, nom: &Fitted| -> Option<Fitted> {
         let n_train = problem.train.len() as f64;
-        let w = reference_witness(problem, rec, gaps.filled(gaps::REFERENCE), nom, fan)?;
+        let w = references.of(problem, nom, fan)?;
         let lag = nominal.actuator_lag();
         let (best, gain) = reference_lag(problem, &w, nom, fan)?;
         let pays = gain > n_train.ln();
@@ -1004,7 +1009,7 @@ pub fn diagnose_with(
         let mut singles: Vec<(Effect, Fitted)> = vec![];
         let by_reference = reference_supported(
             &problem,
-            reference_witness(&problem, rec, gaps.filled(gaps::REFERENCE), nom, fan).as_ref(),
+            references.of(&problem, nom, fan).as_ref(),
             nom,
             &screened,
             fan,
@@ -1220,7 +1225,7 @@ pub fn diagnose_with(
     };
     // The same drive on a hard reference reads the instrument's chain without the sample:
     // each model's reading of it is scored there too (`witness`).
-    let reference = reference_witness(&problem, rec, gaps.filled(gaps::REFERENCE), &nom, fan);
+    let reference = references.of(&problem, &nom, fan);
     let reference_chi2 = |f: &Fitted| -> Option<(f64, f64)> {
         let w = reference.as_ref()?;
         Some(
@@ -1938,26 +1943,52 @@ fn reference_witness(
     let path_at = |offset_nm: f64| {
         problem.simulate_reference(&nom.spec, &nom.theta, &nom.eval.linear, offset_nm)
     };
-    let witness_at = |offset_nm: f64| {
-        let path = path_at(offset_nm)?;
-        let mut w = ReferenceWitness::new(column, &path, &train, &held)?;
+    let witness_of = |path: &ReferencePath, offset_nm: f64| {
+        let mut w = ReferenceWitness::new(column, path, &train, &held)?;
         w.contact_offset_nm = offset_nm;
         Some(w)
     };
-    let aligned = witness_at(0.0)?;
-    let reads = |offset_nm: f64| {
-        path_at(offset_nm)
-            .and_then(|p| aligned.chi2(&p))
-            .map_or(f64::INFINITY, |c| c.0)
-    };
+    let aligned = witness_of(&path_at(0.0)?, 0.0)?;
+    let reads = |path: &ReferencePath| aligned.chi2(path).map_or(f64::INFINITY, |c| c.0);
+    let reads_at = |offset_nm: f64| path_at(offset_nm).map_or(f64::INFINITY, |p| reads(&p));
     let grid = REFERENCE_OFFSET_GRID_NM;
-    let (lo, hi) = least_bracket(&grid, &fan::map(fan, grid.len(), |k| reads(grid[k])))?;
-    let best = crate::linalg::golden_max_within(|x| -reads(x), lo, hi, REFERENCE_OFFSET_TOL_NM);
-    let gain = aligned.nominal.0 - reads(best);
+    let (lo, hi) = least_bracket(&grid, &fan::map(fan, grid.len(), |k| reads_at(grid[k])))?;
+    let best = crate::linalg::golden_max_within(|x| -reads_at(x), lo, hi, REFERENCE_OFFSET_TOL_NM);
+    // The best offset's path serves both its gain and, where it pays, its witness.
+    let Some(path) = path_at(best) else {
+        return Some(aligned);
+    };
+    let gain = aligned.nominal.0 - reads(&path);
     if gain > (problem.train.len() as f64).ln() {
-        witness_at(best).or(Some(aligned))
+        witness_of(&path, best).or(Some(aligned))
     } else {
         Some(aligned)
+    }
+}
+
+/// The hard reference's witnesses of the nominal fits a diagnosis examines, each built once
+/// ([`reference_witness`], whose reading of the reference's contact offset costs some 30
+/// simulations of its path): the same nominal fit is asked for its witness up to three times,
+/// for the lag the reference reads, for the candidates the reference supports, and for the
+/// judgement.
+struct ReferenceWitnesses<'a> {
+    rec: &'a Recording,
+    /// The reference's missing samples, filled (`gaps`): no witness scores them.
+    missing: &'a [usize],
+    /// The witnesses built so far, by the nominal fit's θ (the nominal model's linear
+    /// coefficients, and so its whole reading of the reference, follow from θ).
+    built: std::cell::RefCell<Vec<(Vec<f64>, Option<ReferenceWitness>)>>,
+}
+
+impl ReferenceWitnesses<'_> {
+    /// The witness of `nom` ([`reference_witness`]), built on the first asking.
+    fn of(&self, problem: &Problem, nom: &Fitted, fan: &dyn Fan) -> Option<ReferenceWitness> {
+        if let Some((_, w)) = self.built.borrow().iter().find(|(th, _)| *th == nom.theta) {
+            return w.clone();
+        }
+        let w = reference_witness(problem, self.rec, self.missing, nom, fan);
+        self.built.borrow_mut().push((nom.theta.clone(), w.clone()));
+        w
     }
 }
 
