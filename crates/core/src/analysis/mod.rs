@@ -65,15 +65,22 @@ pub enum FitError {
     Estimate(#[from] EstimateError),
 }
 
-/// Below the baseline by this many noise σ, a force that never rises above it is a
+/// Below the baseline by this many noise σ, a signal that never rises above it is a
 /// deflection channel of the wrong sign rather than no contact.
 const INVERTED_SIGMAS: f64 = 20.0;
 
+/// Whether a deflection (or force) that never rises out of its baseline noise `noise` but
+/// falls `drop` below the baseline was recorded with its sign inverted: the rule the offline
+/// fit ([`prepare`]) and the diagnosis both apply.
+pub(crate) fn looks_inverted(drop: f64, noise: f64) -> bool {
+    drop > INVERTED_SIGMAS * noise
+}
+
 /// The error of a force that never rises out of the baseline noise `noise_n`: a sign
-/// inverted where it falls far below it instead ([`INVERTED_SIGMAS`]), no contact otherwise.
+/// inverted where it falls far below it instead ([`looks_inverted`]), no contact otherwise.
 fn no_contact(force: &[f64], noise_n: f64) -> FitError {
     let lowest = force.iter().copied().fold(0.0f64, f64::min);
-    if -lowest > INVERTED_SIGMAS * noise_n {
+    if looks_inverted(-lowest, noise_n) {
         FitError::InvertedDeflection {
             noise_n,
             drop_n: -lowest,

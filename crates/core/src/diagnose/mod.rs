@@ -524,10 +524,6 @@ fn sensor_parts_from_command(command_nm: &[f64], sensor_nm: &[f64]) -> bool {
     widest > SENSOR_PARTS_FROM_COMMAND * (hi - lo)
 }
 
-/// Below the baseline by this many noise σ, a deflection that never rises above it is of the
-/// wrong sign rather than out of contact.
-const INVERTED_SIGMAS: f64 = 20.0;
-
 /// First contact: where the deflection leaves the free baseline for good, walked back to the
 /// last sample within the noise.
 fn find_contact(y: &[f64]) -> Result<(usize, f64, f64), DiagnoseError> {
@@ -542,9 +538,8 @@ fn find_contact(y: &[f64]) -> Result<(usize, f64, f64), DiagnoseError> {
     let top = y.iter().copied().fold(f64::NEG_INFINITY, f64::max);
     let thr = (8.0 * sigma).max(0.05 * (top - base));
     let Some(above) = y.iter().position(|x| x - base > thr) else {
-        // As the offline fitter's `analysis::no_contact`.
         let drop_v = base - y.iter().copied().fold(base, f64::min);
-        return Err(if drop_v > INVERTED_SIGMAS * sigma {
+        return Err(if analysis::looks_inverted(drop_v, sigma) {
             DiagnoseError::InvertedDeflection {
                 noise_v: sigma,
                 drop_v,

@@ -1196,14 +1196,15 @@ impl Problem {
     /// What the model of θ says the same drive reads on a rigid reference sample whose
     /// contact point is `contact_offset_nm` beyond the sample's (the format promises the two
     /// aligned; the diagnosis reads what is left of that alignment as a nuisance,
-    /// [`super::witness::ReferenceWitness::contact_offset_nm`]): the deflection (V, no noise, no offset) and whether
-    /// the tip touches the reference, per sample. The instrument's chain is the model's —
-    /// the actuator with its gain, dynamics, modes, creep and hysteresis, the detector with
-    /// its delay — and nothing of the sample is: no material, tip, film, adhesion or drift
-    /// (a reference run is a separate run on a hard sample). Of the terms solved in closed
-    /// form, the detector's nonlinearity and the drag are added at the model's coefficients
-    /// `linear` (its [`Evaluation::linear`]); the mains is left out (a separate run picks it up
-    /// at another phase). `None` where the model cannot be simulated.
+    /// [`super::witness::ReferenceWitness::contact_offset_nm`]): the deflection (V, no
+    /// noise, no offset) and whether the tip touches the reference, per sample. The
+    /// instrument's chain is the model's — the actuator with its gain, dynamics, modes, creep
+    /// and hysteresis, the detector with its delay — and nothing of the sample is: no
+    /// material, tip, film, adhesion or drift (a reference run is a separate run on a hard
+    /// sample). Of the terms solved in closed form, the detector's nonlinearity and the drag
+    /// are added at the model's coefficients `linear` (its [`Evaluation::linear`]); the mains
+    /// is left out (a separate run picks it up at another phase). `None` where the model
+    /// cannot be simulated.
     pub fn simulate_reference(
         &self,
         spec: &ModelSpec,

@@ -146,8 +146,9 @@ pub fn main(args: Args) -> std::process::ExitCode {
     match run(args) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
-            tracing::error!("{}", crate::output::error_text(&e));
-            eprintln!("viscoprobed: error: {}", crate::output::error_text(&e));
+            let text = crate::output::error_text(&e);
+            tracing::error!("{text}");
+            eprintln!("viscoprobed: error: {text}");
             std::process::ExitCode::FAILURE
         }
     }
