@@ -314,6 +314,58 @@ pub fn met_terms(spec: &ModelSpec, th: &[f64]) -> Vec<(usize, usize)> {
     ties
 }
 
+/// Starts that put back to use a Prony term the nominal fit at `th` has spent: one met at
+/// another's retardation time ([`met_terms`]: the later of the pair), or one faster than a
+/// sample (`fs_hz`), which the record sees only as instantaneous compliance. Either is a
+/// term the model has and does not use, and Gauss–Newton does not leave such a basin: the
+/// met pair's split and a sub-sample term's τ are all but flat directions. The first spent
+/// term is placed, one start each, between each two neighbouring terms in use (their
+/// geometric mean), a sixth of the fastest (no faster than two samples) and six times the
+/// slowest (no slower than half of `record_s`), at a tenth of the whole compliance; its
+/// compliance moves to its partner or, below a sample, to the instantaneous one, so that
+/// each start reads the record as the fit did. None where no term is spent.
+pub fn spent_term_starts(spec: &ModelSpec, th: &[f64], fs_hz: f64, record_s: f64) -> Vec<Vec<f64>> {
+    let (j, tau) = (|i| spec.term_compliance(i), |i| spec.term_tau(i));
+    let sub_sample = |i: usize| th[tau(i)].exp() < 1.0 / fs_hz;
+    let met = met_terms(spec, th);
+    let partner = |i: usize| met.iter().find(|&&(_, f)| f == tau(i)).map(|&(a, _)| a);
+    let Some(spent) = (0..spec.terms).find(|&i| sub_sample(i) || partner(i).is_some()) else {
+        return vec![];
+    };
+    let mut in_use: Vec<f64> = (0..spec.terms)
+        .filter(|&i| i != spent && !sub_sample(i) && partner(i).is_none())
+        .map(|i| th[tau(i)].exp())
+        .collect();
+    in_use.sort_by(f64::total_cmp);
+    let (Some(&fastest), Some(&slowest)) = (in_use.first(), in_use.last()) else {
+        return vec![];
+    };
+    let mut places: Vec<f64> = in_use.windows(2).map(|w| (w[0] * w[1]).sqrt()).collect();
+    if fastest / 6.0 >= 2.0 / fs_hz {
+        places.push(fastest / 6.0);
+    }
+    if slowest * 6.0 <= 0.5 * record_s {
+        places.push(slowest * 6.0);
+    }
+    let j_of = |i: usize| th[i].exp();
+    let whole = j_of(2) + (0..spec.terms).map(|i| j_of(j(i))).sum::<f64>();
+    // Where the spent term's compliance goes: its met partner's J, or the instantaneous J0.
+    let keeper = match partner(spent) {
+        Some(tau_a) => j((tau_a - tau(0)).min(spec.terms - 1)),
+        None => 2,
+    };
+    places
+        .into_iter()
+        .map(|place| {
+            let mut t = th.to_vec();
+            t[keeper] = (j_of(keeper) + j_of(j(spent))).ln();
+            t[j(spent)] = (0.1 * whole).ln();
+            t[tau(spent)] = place.ln();
+            t
+        })
+        .collect()
+}
+
 /// Fits the nonlinear parameters of `spec` from each start — every one, but for the nominal
 /// actuator's dynamics where `spec` holds them ([`ModelSpec::frees_actuator_dynamics`]) —
 /// and keeps the lowest χ²_train. The actuator's damping is held too where the start's lag is
@@ -661,6 +713,59 @@ mod tests {
         assert_eq!(met_terms(&spec, &th), vec![(3, 4), (6, 7), (3, 5), (6, 8)]);
         let (spec, th) = nominal(&[1e-3, 1e-2, 1.05e-2]);
         assert_eq!(met_terms(&spec, &th), vec![(4, 5), (7, 8)]);
+    }
+
+    /// A spent term is placed between the terms in use, a sixth of the fastest and six
+    /// times the slowest, at a tenth of the whole compliance, its own compliance kept by its
+    /// met partner or, below a sample, by the instantaneous compliance; places out of the
+    /// record's reach are left out, and nothing is spent in a fit that uses every term.
+    #[test]
+    fn a_spent_term_is_put_back_between_and_beside_the_terms_in_use() {
+        let (fs, record_s) = (5000.0, 4.0);
+        let nominal = |taus: &[f64]| {
+            let spec = ModelSpec::nominal(taus.len());
+            let mut th = vec![1.0, 0.0, (1e-6f64).ln()];
+            th.extend(taus.iter().map(|_| (2e-7f64).ln()));
+            th.extend(taus.iter().map(|t| t.ln()));
+            th.extend([0.0, 1.0]);
+            (spec, th)
+        };
+        let whole = 1e-6 + 3.0 * 2e-7;
+        let close = |a: f64, b: f64| (a - b).abs() < 1e-9 * b.abs();
+        // Met at 91 ms (the later of the pair spent) beside 5.86 ms.
+        let (spec, th) = nominal(&[91.5e-3, 91.4e-3, 5.86e-3]);
+        let starts = spent_term_starts(&spec, &th, fs, record_s);
+        let places: Vec<f64> = starts.iter().map(|t| t[spec.term_tau(1)].exp()).collect();
+        let expect = [(5.86e-3 * 91.5e-3f64).sqrt(), 5.86e-3 / 6.0, 91.5e-3 * 6.0];
+        assert_eq!(places.len(), 3, "{places:?}");
+        for (p, e) in places.iter().zip(expect) {
+            assert!(close(*p, e), "{places:?} against {expect:?}");
+        }
+        for t in &starts {
+            assert!(close(t[spec.term_compliance(1)].exp(), 0.1 * whole));
+            assert!(
+                close(t[spec.term_compliance(0)].exp(), 4e-7),
+                "the partner keeps both"
+            );
+            assert!(close(t[2].exp(), 1e-6), "J0 as it was");
+        }
+        // A sub-sample term (57 µs at 10 kHz): its compliance joins J0; six times the slowest
+        // is past half the record and is left out.
+        let (spec, th) = nominal(&[413e-3, 8.2e-3, 57e-6]);
+        let starts = spent_term_starts(&spec, &th, 10_000.0, 2.0);
+        let places: Vec<f64> = starts.iter().map(|t| t[spec.term_tau(2)].exp()).collect();
+        let expect = [(8.2e-3 * 413e-3f64).sqrt(), 8.2e-3 / 6.0];
+        assert_eq!(places.len(), 2, "{places:?}");
+        for (p, e) in places.iter().zip(expect) {
+            assert!(close(*p, e), "{places:?} against {expect:?}");
+        }
+        assert!(
+            close(starts[0][2].exp(), 1.2e-6),
+            "J0 takes the sub-sample term's"
+        );
+        // Every term in use: no start.
+        let (spec, th) = nominal(&[1e-3, 1e-2, 1e-1]);
+        assert!(spent_term_starts(&spec, &th, fs, record_s).is_empty());
     }
 
     /// A tied fit moves each follower by exactly what its lead moves, and does not free it.
