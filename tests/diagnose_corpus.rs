@@ -18,8 +18,8 @@ use viscoprobe_core::diagnose::bench::score;
 use viscoprobe_core::diagnose::corpus::{
     audit, audit_composition, concealed_corpus_with, CaseKind, CorpusCase,
 };
-use viscoprobe_core::diagnose::fan::{map, Serial};
 use viscoprobe_core::diagnose::{diagnose, DiagnoseOptions, CATALOG};
+use viscoprobe_core::fan::{map, Serial};
 use viscoprobe_core::twin::Drag;
 use viscoprobe_daemon::cli::diagnose::run_corpus;
 use viscoprobe_daemon::fan::Threads;

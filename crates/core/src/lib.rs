@@ -20,6 +20,7 @@ pub mod design;
 pub mod diagnose;
 pub mod discrete;
 pub mod estimate;
+pub mod fan;
 pub mod fisher;
 pub mod jpk;
 pub mod linalg;

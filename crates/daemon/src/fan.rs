@@ -9,7 +9,7 @@
 
 use anyhow::Context;
 use rayon::prelude::*;
-use viscoprobe_core::diagnose::fan::Fan;
+use viscoprobe_core::fan::Fan;
 
 /// Runs a fan's jobs on a pool of `threads` threads.
 #[derive(Debug)]
@@ -48,7 +48,7 @@ impl Fan for Threads {
 mod tests {
     use super::*;
     use std::sync::atomic::{AtomicUsize, Ordering};
-    use viscoprobe_core::diagnose::fan::map;
+    use viscoprobe_core::fan::map;
 
     #[test]
     fn threads_return_results_in_job_order() {

@@ -43,6 +43,7 @@ use crate::estimate::frequency::{
 };
 use crate::estimate::time_domain::{fit_time_domain, time_domain_starts, TimeFitOptions};
 use crate::estimate::{Estimate, EstimateError, Method};
+use crate::fan::{self, Fan, Serial};
 use crate::prony::PronySeries;
 use crate::recording::Recording;
 use nalgebra::{DMatrix, DVector};
@@ -204,6 +205,12 @@ impl Baseline {
 /// Baseline, contact point, window, force and indentation of a recording (see the module
 /// documentation).
 pub fn prepare(rec: &Recording) -> Result<Prepared, FitError> {
+    prepare_with(rec, &Serial)
+}
+
+/// [`prepare`], its trial contact points' fits spread by `fan`: the same result, bit for
+/// bit, on any fan.
+pub fn prepare_with(rec: &Recording, fan: &dyn Fan) -> Result<Prepared, FitError> {
     let n = rec.len();
     let k = rec.meta.cantilever.spring_constant_n_per_m;
     let c_m = rec.meta.cantilever.deflection_sensitivity_nm_per_v * 1e-9;
@@ -260,18 +267,19 @@ pub fn prepare(rec: &Recording) -> Result<Prepared, FitError> {
     // is then chosen, between that sample and the threshold crossing, as the one whose (u, y)
     // a one-term viscoelastic model follows best — the contact point as a model parameter,
     // as in a Hertz fit with a free contact point.
+    // The trial points' fits are independent: spread by `fan`, then compared in order.
     if above > walkback + CONTACT_SEARCH_MIN {
         let steps = 24.min(above - walkback);
-        let mut best: Option<(f64, Prepared)> = None;
-        for s in 0..=steps {
+        let trials = fan::map(fan, steps + 1, |s| {
             let c = walkback + (above - walkback) * s / steps;
-            let Ok(p) = build(c) else { continue };
+            let p = build(c).ok()?;
             let mut opts = TimeFitOptions::new(1);
             opts.sampling = Sampling::FirstOrderHold { fs_hz: p.fs_hz };
-            let Ok(est) = fit_time_domain(&p.u, &p.y, p.fs_hz, &opts) else {
-                continue;
-            };
-            let e = nrmse(&p.y, &simulate_foh(&est.model, &p.u, p.fs_hz));
+            let est = fit_time_domain(&p.u, &p.y, p.fs_hz, &opts).ok()?;
+            Some((nrmse(&p.y, &simulate_foh(&est.model, &p.u, p.fs_hz)), p))
+        });
+        let mut best: Option<(f64, Prepared)> = None;
+        for (e, p) in trials.into_iter().flatten() {
             if best.as_ref().is_none_or(|(b, _)| e < *b) {
                 best = Some((e, p));
             }
@@ -676,21 +684,23 @@ pub const BIC_DEFLECTION: &str = "BIC = N·ln(RSS/N) + p·ln N (N deflection sam
 /// Fits a recording (see the module documentation), refining on the deflection where the
 /// drive allows it.
 pub fn fit_recording(rec: &Recording, terms: Terms) -> Result<RecordingFit, FitError> {
-    fit_recording_with(rec, terms, true)
+    fit_recording_with(rec, terms, true, &Serial)
 }
 
 /// [`fit_recording`]; `refine_deflection: false` stops at the first estimate (the
-/// output-error or frequency-domain fit of the linear pair).
+/// output-error or frequency-domain fit of the linear pair). Independent fits are spread by
+/// `fan` ([`prepare_with`]); the result does not depend on it.
 pub fn fit_recording_with(
     rec: &Recording,
     terms: Terms,
     refine_deflection: bool,
+    fan: &dyn Fan,
 ) -> Result<RecordingFit, FitError> {
     // An optional channel's missing samples (the indentation's reference, say) are filled
     // from their neighbours, and the notes say where (`recording::gaps`).
     let (filled, gaps) = crate::recording::gaps::with_gaps_filled(rec);
     let rec: &Recording = &filled;
-    let mut prepared = prepare(rec)?;
+    let mut prepared = prepare_with(rec, fan)?;
     let (u, y, fs) = (&prepared.u, &prepared.y, prepared.fs_hz);
     let len = u.len();
     let orders: Vec<usize> = match terms {
@@ -1058,5 +1068,31 @@ impl RecordingFit {
     /// Duration of the fitted samples, s.
     pub fn fitted_duration_s(&self) -> f64 {
         self.fitted.len() as f64 / self.prepared.fs_hz
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::diagnose::corpus::{nominal_twin, protocol_drive, simulate};
+    use crate::fan::tests::Reversed;
+
+    /// A contact that rises slowly out of the noise (a corpus twin at three times its
+    /// detector noise) is searched for by fitting each trial point, on the caller's fan: the
+    /// point chosen is not the noise band's last sample, and the window is the same, to the
+    /// bit, when the fan runs the trials last to first.
+    #[test]
+    fn the_contact_search_is_the_same_on_any_fan() {
+        let fs = 5000.0;
+        let mut twin = nominal_twin(1);
+        twin.detector.white_noise_v *= 3.0;
+        let rec = simulate(&twin, &protocol_drive(fs).0, fs, None);
+        let a = prepare_with(&rec, &Serial).unwrap();
+        let b = prepare_with(&rec, &Reversed).unwrap();
+        assert_ne!(a.contact_index, a.contact_walkback_index, "no search ran");
+        assert_eq!(a.contact_index, b.contact_index);
+        let bits = |x: &[f64]| x.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&a.u), bits(&b.u));
+        assert_eq!(bits(&a.y), bits(&b.y));
     }
 }

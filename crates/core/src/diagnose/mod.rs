@@ -31,7 +31,7 @@
 
 pub mod bench;
 pub mod corpus;
-pub mod fan;
+pub use crate::fan;
 pub mod fit;
 pub mod locate;
 pub mod model;
@@ -678,10 +678,12 @@ pub fn diagnose_with(
     // forces make the force creep out of the noise (it treats the contact as a model
     // parameter), the simple threshold above is the fallback; its material is the nominal
     // twin's first start.
-    let offline = analysis::fit_recording_with(rec, analysis::Terms::Fixed(terms), false);
+    let offline = analysis::fit_recording_with(rec, analysis::Terms::Fixed(terms), false, fan);
     let contact = match &offline {
         Ok(f) => Some(f.prepared.contact_index),
-        Err(_) => analysis::prepare(rec).ok().map(|p| p.contact_index),
+        Err(_) => analysis::prepare_with(rec, fan)
+            .ok()
+            .map(|p| p.contact_index),
     }
     .filter(|&c| c > 0 && c < n)
     .unwrap_or(contact0);

@@ -1,5 +1,6 @@
 //! `viscoprobe fit REC` and `viscoprobe import FILE.jpk-force`: recordings from any instrument.
 
+use crate::fan::Threads;
 use crate::measure::report::moduli_table;
 use crate::output::print_json;
 use crate::plot::{canvas, draw_legend, err, legend_line, padded_range};
@@ -7,7 +8,7 @@ use anyhow::Context;
 use clap::Args;
 use serde_json::{json, Map, Value};
 use std::path::{Path, PathBuf};
-use viscoprobe_core::analysis::{fit_recording, RecordingFit, Terms};
+use viscoprobe_core::analysis::{fit_recording_with, RecordingFit, Terms};
 use viscoprobe_core::jpk::JpkForce;
 use viscoprobe_core::recording::Recording;
 
@@ -27,6 +28,10 @@ pub struct FitArgs {
     /// Write `fit.svg`, `residuals.svg` and `moduli.svg` into this directory (created).
     #[arg(long, value_name = "DIR")]
     pub plot: Option<PathBuf>,
+    /// Threads for the fits of the trial contact points (default: every core). The fit is
+    /// the same, to the bit, on any number.
+    #[arg(long)]
+    pub threads: Option<usize>,
 }
 
 #[derive(Debug, Args)]
@@ -106,7 +111,8 @@ pub fn run_fit(args: FitArgs) -> anyhow::Result<()> {
         ),
     };
     let rec = load_recording(&args.recording, args.tip_radius_nm)?;
-    let fit = fit_recording(&rec, terms)
+    let fan = args.threads.map_or_else(Threads::all_cores, Threads::new)?;
+    let fit = fit_recording_with(&rec, terms, true, &fan)
         .with_context(|| format!("fitting {}", args.recording.display()))?;
     let est = &fit.estimate;
     let names = est.names();

@@ -2,12 +2,12 @@
 //!
 //! A diagnosis spends nearly all its time in twin simulations, and most of them are
 //! independent of one another: the columns of a finite-difference Jacobian, the points of a
-//! start grid. The core does not start threads (see ARCHITECTURE.md), so it only says *which*
+//! start grid. So do the offline fit's trial contact points (`analysis::prepare_with`). The core does not start threads (see ARCHITECTURE.md), so it only says *which*
 //! evaluations are independent, through a [`Fan`] its caller hands in; the daemon's fan runs
 //! them on threads, [`Serial`] (the default) runs them one after the other.
 //!
 //! Results are always put back in job order and every job computes exactly what it would
-//! have computed alone, so a diagnosis does not depend on the fan: the same numbers, bit for
+//! have computed alone, so a diagnosis (or a fit) does not depend on the fan: the same numbers, bit for
 //! bit, the same simulation count.
 
 use std::sync::Mutex;
