@@ -76,12 +76,12 @@ use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 use toml::{Table, Value};
 
-use super::fan::{self, Fan, Serial};
 use super::fit::{restarted, FD_STEP};
 use super::model::{
     frees_parameter, nominal_actuator_mode, ACTUATOR_LAG_START, ACTUATOR_Q_START, ZC_SCALE_NM,
 };
 use crate::estimate::lm::{solve_lazy, LmOptions};
+use crate::fan::{self, Fan, Serial};
 use crate::prony::{PronySeries, PronyTerm};
 use crate::recording::{Cantilever, Drive, Piezo, Recording, Sample, Sidecar, Tip, FORMAT};
 use crate::twin::actuator::{ActuatorConfig, BoucWen, Creep, ResonantMode};
@@ -2170,7 +2170,7 @@ mod tests {
             p
         };
         let first = build_all(plans(), &drive, &segs, &Serial);
-        let again = build_all(plans(), &drive, &segs, &super::super::fan::tests::Reversed);
+        let again = build_all(plans(), &drive, &segs, &crate::fan::tests::Reversed);
         assert_eq!(first.len(), 5);
         for (x, y) in again.iter().zip(&first) {
             assert_eq!(x.name, y.name);

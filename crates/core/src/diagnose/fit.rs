@@ -5,9 +5,9 @@
 //! a finite-difference Jacobian, which that entry point asks for only at accepted points: each
 //! Jacobian costs one twin simulation per parameter.
 
-use super::fan::{self, Fan};
 use super::model::{frees_parameter, Evaluation, ModelSpec, Problem};
 use crate::estimate::lm::{solve_lazy, Damping, LmOptions};
+use crate::fan::{self, Fan};
 use nalgebra::{DMatrix, DVector};
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -328,7 +328,8 @@ pub fn spent_term_starts(spec: &ModelSpec, th: &[f64], fs_hz: f64, record_s: f64
     let (j, tau) = (|i| spec.term_compliance(i), |i| spec.term_tau(i));
     let sub_sample = |i: usize| th[tau(i)].exp() < 1.0 / fs_hz;
     let met = met_terms(spec, th);
-    let partner = |i: usize| met.iter().find(|&&(_, f)| f == tau(i)).map(|&(a, _)| a);
+    // The met lead's compliance (its index in θ) where the term `i` is its follower.
+    let partner = |i: usize| met.iter().find(|&&(_, f)| f == j(i)).map(|&(a, _)| a);
     let Some(spent) = (0..spec.terms).find(|&i| sub_sample(i) || partner(i).is_some()) else {
         return vec![];
     };
@@ -350,10 +351,7 @@ pub fn spent_term_starts(spec: &ModelSpec, th: &[f64], fs_hz: f64, record_s: f64
     let j_of = |i: usize| th[i].exp();
     let whole = j_of(2) + (0..spec.terms).map(|i| j_of(j(i))).sum::<f64>();
     // Where the spent term's compliance goes: its met partner's J, or the instantaneous J0.
-    let keeper = match partner(spent) {
-        Some(tau_a) => j((tau_a - tau(0)).min(spec.terms - 1)),
-        None => 2,
-    };
+    let keeper = partner(spent).unwrap_or(2);
     places
         .into_iter()
         .map(|place| {
@@ -607,9 +605,9 @@ pub fn orthonormal_basis(j: &DMatrix<f64>) -> DMatrix<f64> {
 #[cfg(test)]
 mod tests {
     use super::super::corpus::{nominal_twin, protocol_drive, simulate, FS_HZ, MATERIAL_TERMS};
-    use super::super::fan::{tests::Reversed, Serial};
     use super::super::model::{Effect, ModelSpec, Problem};
     use super::*;
+    use crate::fan::{tests::Reversed, Serial};
 
     /// The first 1.5 s of a corpus-like record (rest, approach, one multisine period) of a
     /// nominal twin with a channel delay.

@@ -31,7 +31,6 @@
 
 pub mod bench;
 pub mod corpus;
-pub use crate::fan;
 pub mod fit;
 pub mod locate;
 pub mod model;
@@ -39,11 +38,11 @@ pub mod noise;
 pub mod witness;
 
 use crate::analysis;
+use crate::fan::{self, Fan};
 use crate::prony::PronySeries;
 use crate::recording::{gaps, Drive, Recording};
 use crate::twin::actuator::Actuator;
 use crate::twin::TipConfig;
-use fan::Fan;
 use fit::{
     fit_model, orthonormal_basis, restarted, scan_step_parameters, screen, FitOptions, Fitted,
 };
@@ -409,10 +408,6 @@ struct Examined {
     /// Simulations run when the screening ended.
     sims_screen: usize,
 }
-
-/// The nominal twin's readings of the hard reference at its best lag and damping
-/// (`reference_read_at_best_lag`), by θ and linear coefficients, as a diagnosis takes them.
-type BestLagReads = std::cell::RefCell<Vec<(Vec<f64>, Option<(f64, f64)>)>>;
 
 /// The best single refits whose nominal parameters the nominal twin is refitted from.
 const NOMINAL_REPOLISH: usize = 3;
@@ -871,6 +866,7 @@ pub fn diagnose_with(
         rec,
         missing: gaps.filled(gaps::REFERENCE),
         built: Default::default(),
+        best_lag_reads: Default::default(),
     };
     let nominal_from_reference_lag = |problem: &Problem, nom: &Fitted| -> Option<Fitted> {
         let n_train = problem.train.len() as f64;
@@ -1012,14 +1008,8 @@ pub fn diagnose_with(
         // 4. Full refits of the strongest, then pairs.
         let distorted = nom.eval.chi2_train / n_tr > 1.2;
         let mut singles: Vec<(Effect, Fitted)> = vec![];
-        let by_reference = reference_supported(
-            &problem,
-            references.of(&problem, nom, fan).as_ref(),
-            nom,
-            &screened,
-            fan,
-            penalty_of,
-        );
+        let by_reference =
+            reference_supported(&problem, &references, nom, &screened, fan, penalty_of);
         let chosen = chosen_for_refit(
             &screened,
             &locations_before,
@@ -1284,23 +1274,9 @@ pub fn diagnose_with(
             .and_then(|p| w.chi2(&p))
     };
     // Against the nominal twin, an effect of the chain is read on the reference at each
-    // model's best lag too (`reference_read_at_best_lag`), where that reads better: the
-    // nominal twin's readings are asked for at every such judgement, so each is kept.
-    let best_lag_reads: BestLagReads = Default::default();
-    let at_best_lag = |spec: &ModelSpec, theta: &[f64], linear: &[f64]| -> Option<(f64, f64)> {
-        let w = reference.as_ref()?;
-        let key: Vec<f64> = theta.iter().chain(linear).copied().collect();
-        let nominal = spec.effects.is_empty();
-        if nominal {
-            if let Some((_, r)) = best_lag_reads.borrow().iter().find(|(k, _)| *k == key) {
-                return *r;
-            }
-        }
-        let r = reference_read_at_best_lag(&problem, w, spec, theta, linear, fan);
-        if nominal {
-            best_lag_reads.borrow_mut().push((key, r));
-        }
-        r
+    // model's best lag too (`reference_read_at_best_lag`), where that reads better.
+    let at_best_lag = |spec: &ModelSpec, theta: &[f64], linear: &[f64]| {
+        references.read_at_best_lag(&problem, &nom, spec, theta, linear, fan)
     };
     let chain_against_nominal = |base: &Fitted, cand: &Fitted| {
         base.spec.effects.is_empty()
@@ -2032,7 +2008,15 @@ struct ReferenceWitnesses<'a> {
     /// The witnesses built so far, by the nominal fit's θ (the nominal model's linear
     /// coefficients, and so its whole reading of the reference, follow from θ).
     built: std::cell::RefCell<Vec<(Vec<f64>, Option<ReferenceWitness>)>>,
+    /// Readings at the best lag and damping taken so far: the nominal twin's is asked for by
+    /// the screening's reference support and again by every judgement against it.
+    best_lag_reads: std::cell::RefCell<Vec<BestLagRead>>,
 }
+
+/// A reading at the best lag and damping ([`reference_read_at_best_lag`]) by its model, and
+/// the witness's nominal θ, then the model's θ and linear coefficients. The model is part of
+/// the key: a detector nonlinearity has the nominal's θ and only adds linear terms.
+type BestLagRead = (ModelSpec, Vec<f64>, Option<(f64, f64)>);
 
 impl ReferenceWitnesses<'_> {
     /// The witness of `nom` ([`reference_witness`]), built on the first asking.
@@ -2043,6 +2027,36 @@ impl ReferenceWitnesses<'_> {
         let w = reference_witness(problem, self.rec, self.missing, nom, fan);
         self.built.borrow_mut().push((nom.theta.clone(), w.clone()));
         w
+    }
+
+    /// [`reference_read_at_best_lag`] of the model `spec` at `theta` and `linear` by the
+    /// witness of `nom`, taken on the first asking.
+    fn read_at_best_lag(
+        &self,
+        problem: &Problem,
+        nom: &Fitted,
+        spec: &ModelSpec,
+        theta: &[f64],
+        linear: &[f64],
+        fan: &dyn Fan,
+    ) -> Option<(f64, f64)> {
+        let key: Vec<f64> = nom
+            .theta
+            .iter()
+            .chain(theta)
+            .chain(linear)
+            .copied()
+            .collect();
+        let known = |(s, k, _): &&BestLagRead| s == spec && *k == key;
+        if let Some((_, _, r)) = self.best_lag_reads.borrow().iter().find(known) {
+            return *r;
+        }
+        let w = self.of(problem, nom, fan)?;
+        let r = reference_read_at_best_lag(problem, &w, spec, theta, linear, fan);
+        self.best_lag_reads
+            .borrow_mut()
+            .push((spec.clone(), key, r));
+        r
     }
 }
 
@@ -2065,8 +2079,7 @@ fn reference_lag(
             .and_then(|p| w.chi2(&p))
             .map_or(f64::INFINITY, |c| c.0)
     };
-    let grid = REFERENCE_LAG_GRID_SAMPLES;
-    let (lo, hi) = least_bracket(&grid, &fan::map(fan, grid.len(), |k| reads(grid[k])))?;
+    let (lo, hi) = lag_bracket(reads, fan)?;
     let best = crate::linalg::golden_max(|l| -reads(l), lo, hi);
     Some((best, reads(nom.theta[lag]) - reads(best)))
 }
@@ -2105,9 +2118,8 @@ fn reference_read_at_best_lag(
             .and_then(|p| w.chi2(&p))
     };
     let train = |l: f64, q: f64| at(l, q).map_or(f64::INFINITY, |c| c.0);
-    let grid = REFERENCE_LAG_GRID_SAMPLES;
     let best_lag = |q: f64| -> Option<f64> {
-        let (lo, hi) = least_bracket(&grid, &fan::map(fan, grid.len(), |k| train(grid[k], q)))?;
+        let (lo, hi) = lag_bracket(|l| train(l, q), fan)?;
         Some(crate::linalg::golden_max_within(
             |l| -train(l, q),
             lo,
@@ -2130,6 +2142,14 @@ fn reference_read_at_best_lag(
         .into_iter()
         .flatten()
         .min_by(|a, b| a.0.total_cmp(&b.0))
+}
+
+/// The neighbours on [`REFERENCE_LAG_GRID_SAMPLES`] of the lag (samples) whose reading
+/// `reads` is least, the bracket a golden search then narrows; the grid's points read on
+/// `fan`.
+fn lag_bracket(reads: impl Fn(f64) -> f64 + Sync, fan: &dyn Fan) -> Option<(f64, f64)> {
+    let grid = REFERENCE_LAG_GRID_SAMPLES;
+    least_bracket(&grid, &fan::map(fan, grid.len(), |k| reads(grid[k])))
 }
 
 /// `rows` (ascending sample indices) without the `missing` ones (ascending too): a witness
@@ -2159,13 +2179,13 @@ fn least_bracket(grid: &[f64], values: &[f64]) -> Option<(f64, f64)> {
 /// full, for and against; the screening, and what it reports, stays the sample's alone.
 fn reference_supported(
     problem: &Problem,
-    witness: Option<&ReferenceWitness>,
+    references: &ReferenceWitnesses,
     nom: &Fitted,
     screened: &[(Effect, f64, Vec<f64>)],
     fan: &dyn Fan,
     penalty_of: impl Fn(Effect) -> f64,
 ) -> Vec<Effect> {
-    let Some(witness) = witness else {
+    let Some(witness) = references.of(problem, nom, fan) else {
         return vec![];
     };
     let below: Vec<&(Effect, f64, Vec<f64>)> = screened
@@ -2175,11 +2195,11 @@ fn reference_supported(
     if below.is_empty() {
         return vec![];
     }
-    // Each read at its best lag (`reference_read_at_best_lag`).
-    let read = |spec: &ModelSpec, th: &[f64], linear: &[f64]| {
-        reference_read_at_best_lag(problem, witness, spec, th, linear, &fan::Serial).map(|c| c.0)
-    };
-    let Some(nominal) = read(&nom.spec, &nom.theta, &nom.eval.linear) else {
+    // Each read at its best lag (`reference_read_at_best_lag`); the nominal's reading is
+    // kept for the judgement.
+    let Some((nominal, _)) =
+        references.read_at_best_lag(problem, nom, &nom.spec, &nom.theta, &nom.eval.linear, fan)
+    else {
         return vec![];
     };
     let nominal = nominal.min(witness.nominal.0);
@@ -2187,7 +2207,9 @@ fn reference_supported(
         let (e, _, th) = below[k];
         let spec = nom.spec.with(&[*e]);
         let eval = problem.evaluate(&spec, th)?;
-        Some(nominal - read(&spec, th, &eval.linear)?)
+        let read =
+            reference_read_at_best_lag(problem, &witness, &spec, th, &eval.linear, &fan::Serial);
+        Some(nominal - read?.0)
     });
     below
         .into_iter()
@@ -2845,12 +2867,12 @@ mod tests {
     use super::corpus::{
         noise_free, nominal_twin, protocol_drive, simulate, simulate_with_truth, FS_HZ,
     };
-    use super::fan::Serial;
     use super::{
         diagnose, find_snap_in, fit_model, reference_lag, reference_read_at_best_lag,
         reference_witness, sensor_parts_from_command, split_train_held, BasePosition,
         DiagnoseOptions, Diagnosis, FitOptions, ModelSpec, Verdict,
     };
+    use crate::fan::Serial;
     use crate::recording::{gaps, Drive, Recording};
     use crate::twin::actuator::{BoucWen, Creep};
     use crate::twin::detector::Mains;
@@ -3212,6 +3234,42 @@ mod tests {
             bests.push(best);
         }
         assert!((bests[0] - bests[1]).abs() < 1.0, "{bests:?}");
+    }
+
+    /// The readings at the best lag are kept by model as well as by θ and linear terms: the
+    /// nominal twin read at a detector nonlinearity's parameters (as a chain candidate is
+    /// measured against it) has the same θ and linear terms as the candidate itself, and
+    /// must not be handed the candidate's reading.
+    #[test]
+    fn readings_at_the_best_lag_are_kept_by_model() {
+        let fs = 5000.0;
+        let mut twin = nominal_twin(33);
+        twin.detector.cubic_per_v2 = CUBIC_NEAR_FLOOR_PER_V2;
+        let (rec, problem, spec, truth) = reference_case(&twin, fs);
+        let opts = FitOptions {
+            max_iterations: 3,
+            max_step: 1.0,
+        };
+        let nom = fit_model(&problem, &spec, &[truth], opts, &Serial).unwrap();
+        let references = super::ReferenceWitnesses {
+            rec: &rec,
+            missing: &[],
+            built: Default::default(),
+            best_lag_reads: Default::default(),
+        };
+        let w = references.of(&problem, &nom, &Serial).unwrap();
+        let cubic = spec.with(&[super::model::Effect::DetectorNonlinearity]);
+        let linear = problem.evaluate(&cubic, &nom.theta).unwrap().linear;
+        let mut reads = vec![];
+        for model in [&cubic, &spec, &cubic] {
+            let kept =
+                references.read_at_best_lag(&problem, &nom, model, &nom.theta, &linear, &Serial);
+            let direct =
+                reference_read_at_best_lag(&problem, &w, model, &nom.theta, &linear, &Serial);
+            assert_eq!(kept, direct, "{}", model.label());
+            reads.push(kept.unwrap().0);
+        }
+        assert!((reads[0] - reads[1]).abs() > 1.0, "{reads:?}");
     }
 
     /// A reference run whose contact point is 10 nm off the sample's (the format promises

@@ -835,7 +835,7 @@ impl ModelSpec {
 /// Everything about the recording that a model evaluation needs, fixed for a diagnosis.
 ///
 /// Evaluations only read it (the simulation count and the cached columns are atomic), so
-/// independent evaluations may run on several threads at once (see [`super::fan`]).
+/// independent evaluations may run on several threads at once (see [`crate::fan`]).
 #[derive(Debug)]
 pub struct Problem {
     pub fs_hz: f64,
