@@ -157,6 +157,67 @@ pub fn in_time(e: &[f64], phases: &[Phase], fs_hz: f64) -> Vec<Location> {
         .collect()
 }
 
+/// The periodograms of a residual and of the drive over one window, each bin in the
+/// residual's units (a whitened residual's bins are 1 on average at the floor), `n/2` bins of
+/// `df` Hz from 0.
+struct Spectra {
+    pe: Vec<f64>,
+    pd: Vec<f64>,
+    df: f64,
+}
+
+impl Spectra {
+    /// Whether bin `k` is an excited line: the drive has at least a thousandth of its
+    /// strongest bin's power there.
+    fn excited(&self) -> impl Fn(usize) -> bool + '_ {
+        let dmax = self.pd.iter().skip(1).copied().fold(0.0, f64::max);
+        move |k| self.pd[k] > 1e-3 * dmax
+    }
+}
+
+/// `None` for a window shorter than 64 samples, which has no spectrum worth the name.
+fn spectra(e: &[f64], drive: &[f64], (a, b): (usize, usize), fs_hz: f64) -> Option<Spectra> {
+    use rustfft::{num_complex::Complex64, FftPlanner};
+    let n = b - a;
+    if n < 64 {
+        return None;
+    }
+    let fft = FftPlanner::new().plan_fft_forward(n);
+    let spec = |x: &[f64]| -> Vec<f64> {
+        let m = x.iter().sum::<f64>() / n as f64;
+        let mut buf: Vec<Complex64> = x.iter().map(|v| Complex64::new(v - m, 0.0)).collect();
+        fft.process(&mut buf);
+        buf[..n / 2]
+            .iter()
+            .map(|c| c.norm_sqr() / n as f64)
+            .collect()
+    };
+    Some(Spectra {
+        pe: spec(&e[a..b]),
+        pd: spec(&drive[a..b]),
+        df: fs_hz / n as f64,
+    })
+}
+
+/// The excited line above `f_min_hz` where the whitened residual `e` has the most power, as
+/// (frequency in Hz, power in units of the floor); `None` without an excited line there.
+/// Under a multisine a mode shows on the few lines near it and hardly anywhere else, so this
+/// line, not an octave band of the lines' gaps, says where to look for it.
+pub fn strongest_excited_line(
+    e: &[f64],
+    drive: &[f64],
+    window: (usize, usize),
+    fs_hz: f64,
+    f_min_hz: f64,
+) -> Option<(f64, f64)> {
+    let s = spectra(e, drive, window, fs_hz)?;
+    let excited = s.excited();
+    (1..s.pe.len())
+        .filter(|&k| k as f64 * s.df >= f_min_hz && excited(k))
+        .max_by(|&a, &b| s.pe[a].total_cmp(&s.pe[b]))
+        .map(|k| (k as f64 * s.df, s.pe[k]))
+}
+
 /// Frequency-domain excess over `window`: the excited lines (where the drive has power),
 /// the mains lines (50/60 Hz and two harmonics), and octave bands of everything else; only
 /// above `f_min_hz`, the lowest frequency at which the floor was measured (a free segment of
@@ -168,35 +229,18 @@ pub fn in_frequency(
     fs_hz: f64,
     f_min_hz: f64,
 ) -> Vec<Location> {
-    use rustfft::{num_complex::Complex64, FftPlanner};
-    let (a, b) = window;
-    let n = b - a;
-    if n < 64 {
+    let Some(s) = spectra(e, drive, window, fs_hz) else {
         return vec![];
-    }
-    let mut planner = FftPlanner::new();
-    let fft = planner.plan_fft_forward(n);
-    let spec = |x: &[f64]| -> Vec<f64> {
-        let m = x.iter().sum::<f64>() / n as f64;
-        let mut buf: Vec<Complex64> = x.iter().map(|v| Complex64::new(v - m, 0.0)).collect();
-        fft.process(&mut buf);
-        buf[..n / 2]
-            .iter()
-            .map(|c| c.norm_sqr() / n as f64)
-            .collect()
     };
-    let pe = spec(&e[a..b]);
-    let pd = spec(&drive[a..b]);
-    let df = fs_hz / n as f64;
-    let dmax = pd.iter().skip(1).copied().fold(0.0, f64::max);
+    let excited = s.excited();
+    let (pe, df) = (&s.pe, s.df);
+    let n = 2 * pe.len();
     let mut group = vec![2u8; n / 2]; // 0 excited, 1 mains, 2 other, 3 below the floor
-    for k in 1..n / 2 {
+    for (k, g) in group.iter_mut().enumerate().skip(1) {
         if (k as f64) * df < f_min_hz {
-            group[k] = 3;
-            continue;
-        }
-        if pd[k] > 1e-3 * dmax {
-            group[k] = 0;
+            *g = 3;
+        } else if excited(k) {
+            *g = 0;
         }
     }
     for f0 in [50.0, 60.0] {
@@ -312,4 +356,48 @@ pub fn whiteness(e: &[f64], drive: &[f64], fs_hz: f64) -> Vec<Location> {
             significant: zc > Z_SIGNIFICANT,
         },
     ]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{rngs::StdRng, SeedableRng};
+    use rand_distr::{Distribution, StandardNormal};
+
+    /// A drive of five lines and a unit-floor residual: the line where the residual carries a
+    /// sinusoid is the one returned, with its power in floor units; lines below `f_min_hz`
+    /// and the residual's power between the lines are not looked at.
+    #[test]
+    fn the_excited_line_with_the_most_residual_is_found() {
+        let (fs, n) = (4000.0, 8000);
+        let lines = [4.0, 30.0, 120.0, 366.0, 900.0];
+        let t = |k: usize| k as f64 / fs;
+        let tone = |f: f64, k: usize| (2.0 * std::f64::consts::PI * f * t(k)).cos();
+        let drive: Vec<f64> = (0..n)
+            .map(|k| lines.iter().map(|&f| tone(f, k)).sum())
+            .collect();
+        let mut rng = StdRng::seed_from_u64(7);
+        let noise: Vec<f64> = (0..n).map(|_| StandardNormal.sample(&mut rng)).collect();
+        // A sinusoid of amplitude a has a periodogram bin of a²·n/4: 0.2 gives 80 floors, a
+        // larger one between the lines (700 Hz) and on the line below 50 Hz is passed by.
+        let with = |a: f64| -> Vec<f64> {
+            (0..n)
+                .map(|k| noise[k] + a * tone(366.0, k) + 0.5 * tone(700.0, k) + 0.5 * tone(4.0, k))
+                .collect()
+        };
+        let (f, power) = strongest_excited_line(&with(0.2), &drive, (0, n), fs, 50.0).unwrap();
+        assert_eq!(f, 366.0);
+        assert!(
+            (power / (0.04 * n as f64 / 4.0) - 1.0).abs() < 0.3,
+            "{power}"
+        );
+        // Without it, the strongest line is the floor's own scatter, below the 20 floors the
+        // diagnosis asks for.
+        let (_, power) = strongest_excited_line(&with(0.0), &drive, (0, n), fs, 50.0).unwrap();
+        assert!(power < 20.0, "{power}");
+        assert_eq!(
+            strongest_excited_line(&noise[..40], &drive[..40], (0, 40), fs, 50.0),
+            None
+        );
+    }
 }
