@@ -513,6 +513,10 @@ fn real_jpk_diagnose_json_keeps_the_documented_keys() {
     }
     for e in effects {
         finite(e, "evidence");
+        let refused = e
+            .get("refused")
+            .expect("every effect says whether it was refused");
+        assert!(refused.is_null() || refused.is_string(), "{e}");
         for (name, p) in e["params"].as_object().expect("params") {
             finite(p, "value");
             assert!(p["unit"].is_string(), "{name}: {p}");

@@ -807,6 +807,13 @@ impl ModelSpec {
                 .sum::<usize>()
     }
 
+    /// The frequency of the `instrument_resonance` mode `theta` puts in, Hz; `None` for a
+    /// model without one.
+    pub fn mode_hz(&self, theta: &[f64]) -> Option<f64> {
+        let at = self.offset_of(Effect::InstrumentResonance)?;
+        theta.get(at).map(|ln_hz| ln_hz.exp())
+    }
+
     /// Offset of effect `e`'s nonlinear parameters in θ.
     pub fn offset_of(&self, e: Effect) -> Option<usize> {
         let mut off = self.n_nominal();

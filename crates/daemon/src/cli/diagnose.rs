@@ -97,6 +97,7 @@ pub fn diagnosis_json(file: &str, d: &Diagnosis, seconds: f64) -> Value {
             "held_out_nrmse": e.held_out_nrmse,
             "sensor_evidence": e.sensor_evidence,
             "reference_evidence": e.reference_evidence,
+            "refused": e.refused,
             "description": e.description,
             "params": e.params.iter().map(|p| (p.name.clone(), json!({
                 "value": p.value,
@@ -438,7 +439,11 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
                 "  {:<22} evidence {:>10.1}{}",
                 e.id,
                 e.evidence,
-                if e.refitted { "" } else { " (screened only)" }
+                match (e.refused, e.refitted) {
+                    (Some(why), _) => format!(" (not named: {why})"),
+                    (None, true) => String::new(),
+                    (None, false) => " (screened only)".into(),
+                }
             );
         }
     }
