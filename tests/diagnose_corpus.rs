@@ -260,12 +260,7 @@ fn jpk_pull_off_is_located_and_named_adhesion() {
         pull.from,
         pull.to
     );
-    let named: Vec<&str> = d
-        .effects
-        .iter()
-        .filter(|e| e.significant)
-        .map(|e| e.id)
-        .collect();
+    let named = d.named();
     assert_eq!(named.first(), Some(&"adhesion"), "named {named:?}");
     assert_eq!(d.base_position.id(), "measured_height");
     assert_eq!(d.weighting.id(), "equal");

@@ -27,12 +27,7 @@ pub struct CaseOutcome {
 
 impl CaseOutcome {
     pub fn new(name: &str, truth: &[&str], d: &Diagnosis, seconds: f64) -> Self {
-        let significant: Vec<String> = d
-            .effects
-            .iter()
-            .filter(|e| e.significant)
-            .map(|e| e.id.to_string())
-            .collect();
+        let significant: Vec<String> = d.named().into_iter().map(String::from).collect();
         Self {
             name: name.into(),
             truth: truth.iter().map(|s| s.to_string()).collect(),

@@ -151,7 +151,9 @@ impl Effect {
     fn linear_names(self, spec: &ModelSpec, mains_hz: f64) -> Vec<(String, &'static str)> {
         match self {
             Effect::ThermalDrift => match spec.drift {
-                DriftForm::Deflection => vec![("drift_v_per_s".into(), "V/s")],
+                DriftForm::Deflection | DriftForm::SurfaceAndDeflection => {
+                    vec![("drift_v_per_s".into(), "V/s")]
+                }
                 DriftForm::CurvedDeflection => vec![
                     ("drift_v_per_s".into(), "V/s"),
                     ("drift_curvature_v_per_s2".into(), "V/s²"),
@@ -321,6 +323,18 @@ pub enum DriftForm {
     CurvedDeflection,
     /// The surface height drifts along a parabola (rate and curvature, fitted in the twin).
     Surface,
+    /// Both at once, as a warming instrument drifts: the stage's height along a parabola and
+    /// the detector's zero (the lever's bimorph bending) along a line. An independent
+    /// simulator's drift is of both kinds; a single form left the other kind to a second,
+    /// wrong name (a drag at 112 and 207 χ² units, with a coefficient of zero).
+    SurfaceAndDeflection,
+}
+
+impl DriftForm {
+    /// Whether the surface height drifts (its rate and curvature are in θ).
+    pub fn moves_surface(self) -> bool {
+        matches!(self, DriftForm::Surface | DriftForm::SurfaceAndDeflection)
+    }
 }
 
 /// The forms of `adhesion`.
@@ -701,7 +715,11 @@ impl ModelSpec {
             fork(&mut out, &[true], |s, f| s.mains_harmonics = f);
         }
         if first.has(Effect::ThermalDrift) && first.drift == DriftForm::Deflection {
-            let curved = [DriftForm::CurvedDeflection, DriftForm::Surface];
+            let curved = [
+                DriftForm::CurvedDeflection,
+                DriftForm::Surface,
+                DriftForm::SurfaceAndDeflection,
+            ];
             fork(&mut out, &curved, |s, f| s.drift = f);
         }
         out
@@ -729,7 +747,7 @@ impl ModelSpec {
             ADHESION_NECK_NAMES
         } else if e == Effect::Adhesion && self.adhesion == AdhesionForm::LongRange {
             ADHESION_RANGE_NAMES
-        } else if e == Effect::ThermalDrift && self.drift == DriftForm::Surface {
+        } else if e == Effect::ThermalDrift && self.drift.moves_surface() {
             SURFACE_DRIFT_NAMES
         } else if e == Effect::TipGeometry && self.tip == TipForm::Blunted {
             BLUNTED_TIP_NAMES
@@ -1126,11 +1144,15 @@ impl Problem {
                     .flatten()
                     .map(f64::exp),
                 thickness_nm: p(Effect::SubstrateEffect, 0).map(f64::exp),
-                surface_drift_nm_per_s: (spec.drift == DriftForm::Surface)
+                surface_drift_nm_per_s: spec
+                    .drift
+                    .moves_surface()
                     .then(|| p(Effect::ThermalDrift, 0))
                     .flatten()
                     .map(|x| x * SURFACE_DRIFT_SCALE_NM_PER_S),
-                surface_drift_curvature_nm_per_s2: (spec.drift == DriftForm::Surface)
+                surface_drift_curvature_nm_per_s2: spec
+                    .drift
+                    .moves_surface()
                     .then(|| p(Effect::ThermalDrift, 1))
                     .flatten()
                     .map(|x| x * SURFACE_DRIFT_SCALE_NM_PER_S),
@@ -1359,7 +1381,9 @@ impl Problem {
         for &e in &spec.effects {
             match e {
                 Effect::ThermalDrift => match spec.drift {
-                    DriftForm::Deflection => cols.push(borrowed(FixedColumn::Time)),
+                    DriftForm::Deflection | DriftForm::SurfaceAndDeflection => {
+                        cols.push(borrowed(FixedColumn::Time))
+                    }
                     DriftForm::CurvedDeflection => {
                         cols.push(borrowed(FixedColumn::Time));
                         cols.push(borrowed(FixedColumn::TimeSquared));
@@ -1875,10 +1899,12 @@ mod tests {
             [
                 DriftForm::Deflection,
                 DriftForm::CurvedDeflection,
-                DriftForm::Surface
+                DriftForm::Surface,
+                DriftForm::SurfaceAndDeflection
             ]
         );
         assert_eq!(drift[2].n_nonlinear(), drift[0].n_nonlinear() + 2);
+        assert_eq!(drift[3].n_nonlinear(), drift[0].n_nonlinear() + 2);
         assert_eq!(forms(&[Effect::DetectorNonlinearity]).len(), 3);
         let resonance = forms(&[Effect::InstrumentResonance]);
         let kinds: Vec<ResonanceForm> = resonance.iter().map(|s| s.resonance).collect();
