@@ -234,8 +234,8 @@ pub fn in_frequency(
     };
     let excited = s.excited();
     let (pe, df) = (&s.pe, s.df);
-    let n = 2 * pe.len();
-    let mut group = vec![2u8; n / 2]; // 0 excited, 1 mains, 2 other, 3 below the floor
+    let n_bins = pe.len();
+    let mut group = vec![2u8; n_bins]; // 0 excited, 1 mains, 2 other, 3 below the floor
     for (k, g) in group.iter_mut().enumerate().skip(1) {
         if (k as f64) * df < f_min_hz {
             *g = 3;
@@ -246,7 +246,7 @@ pub fn in_frequency(
     for f0 in [50.0, 60.0] {
         for h in 1..=3 {
             let k = (f0 * h as f64 / df).round() as usize;
-            let (k0, k1) = (k.saturating_sub(1).max(1), (k + 2).min(n / 2));
+            let (k0, k1) = (k.saturating_sub(1).max(1), (k + 2).min(n_bins));
             for g in group.iter_mut().take(k1).skip(k0) {
                 if *g == 2 {
                     *g = 1;
@@ -276,15 +276,15 @@ pub fn in_frequency(
     };
     add(
         "excited_lines".into(),
-        (1..n / 2).filter(|&k| group[k] == 0).collect(),
+        (1..n_bins).filter(|&k| group[k] == 0).collect(),
     );
     add(
         "mains_lines".into(),
-        (1..n / 2).filter(|&k| group[k] == 1).collect(),
+        (1..n_bins).filter(|&k| group[k] == 1).collect(),
     );
     let mut f = df.max(f_min_hz);
     while f < fs_hz / 2.0 {
-        let (k0, k1) = ((f / df) as usize, ((2.0 * f / df) as usize).min(n / 2));
+        let (k0, k1) = ((f / df) as usize, ((2.0 * f / df) as usize).min(n_bins));
         add(
             format!("band {:.0}–{:.0} Hz", f, 2.0 * f),
             (k0.max(1)..k1).filter(|&k| group[k] == 2).collect(),
