@@ -164,14 +164,14 @@ struct Spectra {
     pe: Vec<f64>,
     pd: Vec<f64>,
     df: f64,
+    /// A thousandth of the drive's strongest bin (DC aside): the least an excited line has.
+    line_floor: f64,
 }
 
 impl Spectra {
-    /// Whether bin `k` is an excited line: the drive has at least a thousandth of its
-    /// strongest bin's power there.
-    fn excited(&self) -> impl Fn(usize) -> bool + '_ {
-        let dmax = self.pd.iter().skip(1).copied().fold(0.0, f64::max);
-        move |k| self.pd[k] > 1e-3 * dmax
+    /// Whether bin `k` is an excited line.
+    fn excited(&self, k: usize) -> bool {
+        self.pd[k] > self.line_floor
     }
 }
 
@@ -192,10 +192,13 @@ fn spectra(e: &[f64], drive: &[f64], (a, b): (usize, usize), fs_hz: f64) -> Opti
             .map(|c| c.norm_sqr() / n as f64)
             .collect()
     };
+    let pd = spec(&drive[a..b]);
+    let line_floor = 1e-3 * pd.iter().skip(1).copied().fold(0.0, f64::max);
     Some(Spectra {
         pe: spec(&e[a..b]),
-        pd: spec(&drive[a..b]),
+        pd,
         df: fs_hz / n as f64,
+        line_floor,
     })
 }
 
@@ -211,9 +214,8 @@ pub fn strongest_excited_line(
     f_min_hz: f64,
 ) -> Option<(f64, f64)> {
     let s = spectra(e, drive, window, fs_hz)?;
-    let excited = s.excited();
     (1..s.pe.len())
-        .filter(|&k| k as f64 * s.df >= f_min_hz && excited(k))
+        .filter(|&k| k as f64 * s.df >= f_min_hz && s.excited(k))
         .max_by(|&a, &b| s.pe[a].total_cmp(&s.pe[b]))
         .map(|k| (k as f64 * s.df, s.pe[k]))
 }
@@ -232,14 +234,13 @@ pub fn in_frequency(
     let Some(s) = spectra(e, drive, window, fs_hz) else {
         return vec![];
     };
-    let excited = s.excited();
     let (pe, df) = (&s.pe, s.df);
     let n_bins = pe.len();
     let mut group = vec![2u8; n_bins]; // 0 excited, 1 mains, 2 other, 3 below the floor
     for (k, g) in group.iter_mut().enumerate().skip(1) {
         if (k as f64) * df < f_min_hz {
             *g = 3;
-        } else if excited(k) {
+        } else if s.excited(k) {
             *g = 0;
         }
     }

@@ -3532,24 +3532,19 @@ mod tests {
     }
 
     /// The diagnosis of the corpus protocol on twin `seed` with a frame mode of `peak_gain`
-    /// at `freq_hz`, and its top effect, which must be a significant `instrument_resonance`.
-    fn named_frame_mode(
-        seed: u64,
-        freq_hz: f64,
-        q: f64,
-        peak_gain: f64,
-    ) -> (Diagnosis, super::EffectReport) {
+    /// at `freq_hz`, whose top effect must be a significant `instrument_resonance`.
+    fn named_frame_mode(seed: u64, freq_hz: f64, q: f64, peak_gain: f64) -> Diagnosis {
         let mut twin = nominal_twin(seed);
         twin.actuator.modes = vec![crate::twin::actuator::ResonantMode::peaking(
             freq_hz, q, peak_gain,
         )];
         let d = diagnosed(&twin, FS_HZ);
-        let top = d.effects[0].clone();
+        let top = &d.effects[0];
         assert!(
             top.significant && top.id == "instrument_resonance",
             "{top:?}"
         );
-        (d, top)
+        d
     }
 
     /// A sharp mode of the frame (Q 30, three times the motion at 150 Hz) between the excited
@@ -3558,7 +3553,8 @@ mod tests {
     #[test]
     fn a_sharp_frame_mode_is_fitted_from_the_peaking_grid() {
         let (f, q, gain) = (150.0, 30.0, 3.0);
-        let (d, top) = named_frame_mode(35, f, q, gain);
+        let d = named_frame_mode(35, f, q, gain);
+        let top = &d.effects[0];
         let value = |name: &str| top.params.iter().find(|p| p.name == name).unwrap().value;
         assert!((value("freq_hz") / f - 1.0).abs() < 0.01, "{top:?}");
         assert!((value("q") / q - 1.0).abs() < 0.2, "{top:?}");
@@ -3575,7 +3571,8 @@ mod tests {
     #[test]
     fn a_small_mode_beside_an_excited_line_is_fitted_from_that_line() {
         let (f, q, gain) = (356.0, 13.0, 1.2);
-        let (d, top) = named_frame_mode(36, f, q, gain);
+        let d = named_frame_mode(36, f, q, gain);
+        let top = &d.effects[0];
         let param = |name: &str| top.params.iter().find(|p| p.name == name).unwrap();
         let freq = param("freq_hz");
         assert!((freq.value / f - 1.0).abs() < 0.02, "{freq:?}");
