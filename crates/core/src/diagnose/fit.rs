@@ -6,7 +6,7 @@
 //! Jacobian costs one twin simulation per parameter.
 
 use super::model::{frees_parameter, Evaluation, ModelSpec, Problem};
-use crate::estimate::lm::{solve_lazy, Damping, LmOptions};
+use crate::estimate::lm::{solve_lazy, Damping, LmOptions, Stall};
 use crate::fan::{self, Fan};
 use nalgebra::{DMatrix, DVector};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -98,6 +98,8 @@ pub struct FitOptions {
     pub max_iterations: usize,
     /// Largest step of any θ component per iteration (log units: a factor e^max).
     pub max_step: f64,
+    /// Stop a fit that crawls (`LmOptions::stall`); `None` runs it to the tolerances.
+    pub stall: Option<Stall>,
 }
 
 impl Default for FitOptions {
@@ -105,6 +107,7 @@ impl Default for FitOptions {
         Self {
             max_iterations: 30,
             max_step: 1.0,
+            stall: None,
         }
     }
 }
@@ -208,6 +211,7 @@ fn fit_params_tied(
             max: 1e12,
             diag_floor: 1e-12,
         },
+        stall: opts.stall,
     };
     // Every Jacobian is a finite-difference one. Broyden's rank-one update for two of every
     // three accepted steps was tried (2026-11-26, efebcae–51621b0; exact again wherever an
@@ -566,6 +570,7 @@ pub fn screen(
     let opts = FitOptions {
         max_iterations: 10,
         max_step: 1.5,
+        stall: None,
     };
     let projected = |r: &[f64]| {
         let rv = DVector::from_column_slice(r);
@@ -653,6 +658,7 @@ mod tests {
         let opts = FitOptions {
             max_iterations: 6,
             max_step: 1.0,
+            stall: None,
         };
         let fitted = fit_model(&problem, &spec, &[start], opts, fan).expect("fit");
         let nominal = fit_model(&problem, &nominal_spec, &[th0], opts, fan).expect("fit");
@@ -783,6 +789,7 @@ mod tests {
         let opts = FitOptions {
             max_iterations: 4,
             max_step: 1.0,
+            stall: None,
         };
         let f = fit_model_tied(&problem, &spec, &[th0.clone()], &ties, opts, &Serial).unwrap();
         assert!(
@@ -840,6 +847,7 @@ mod tests {
         let opts = FitOptions {
             max_iterations: 30,
             max_step: 1.0,
+            stall: None,
         };
         let held = fit_model(&problem, &spec, &[start], opts, &Serial).unwrap();
         assert!(!held.free.contains(&damping), "{:?}", held.free);

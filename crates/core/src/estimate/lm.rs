@@ -26,6 +26,43 @@ pub struct LmOptions {
     /// Step size (relative to 1 + |p|) below which the fit has converged.
     pub step_tolerance: f64,
     pub damping: Damping,
+    /// Where set, a fit whose cost fell by less than [`Stall::min_gain`] over the last
+    /// [`Stall::window`] iterations has converged: it is crawling along a valley floor, each
+    /// step gaining more than the tolerances above yet all of them together nothing that
+    /// matters. `None`: it runs on while any one step gains.
+    pub stall: Option<Stall>,
+}
+
+/// A crawl's stopping rule ([`LmOptions::stall`]): over `window` iterations the cost must
+/// fall by `min_gain`, and by `excess_fraction` of its excess over `floor_cost` (the cost
+/// a perfect model would reach: the χ² of the noise alone), whichever is more. A fit far
+/// above the floor that gains a thousandth of its excess in five iterations would gain well
+/// under a hundredth in the rest. A fit at or below `above_cost` never stalls.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Stall {
+    /// Iterations the gain is summed over.
+    pub window: usize,
+    /// The least cost those iterations must gain together.
+    pub min_gain: f64,
+    /// The least share of the cost's excess over `floor_cost` they must gain.
+    pub excess_fraction: f64,
+    pub floor_cost: f64,
+    /// Only a fit whose cost is still above this may stall: below it every unit may matter,
+    /// and the fit runs to the tolerances.
+    pub above_cost: f64,
+}
+
+impl Stall {
+    /// Whether a fit whose cost was `before` `window` iterations ago and is `now` has stalled.
+    fn stalled(&self, before: f64, now: f64) -> bool {
+        if now <= self.above_cost {
+            return false;
+        }
+        let needed = self
+            .min_gain
+            .max(self.excess_fraction * (now - self.floor_cost));
+        before - now < needed
+    }
 }
 
 /// Marquardt's damping schedule: λ starts at 1e-3, is divided by `down` after an accepted
@@ -61,6 +98,7 @@ impl Default for LmOptions {
             cost_tolerance_abs: 0.0,
             step_tolerance: 1e-11,
             damping: Damping::default(),
+            stall: None,
         }
     }
 }
@@ -117,6 +155,8 @@ pub fn solve_lazy(
     let n = p.len();
     let mut converged = false;
     let mut iterations = 0;
+    // The cost after each iteration, the start's first: what a stall is measured on.
+    let mut costs = vec![cost];
     while iterations < opts.max_iterations {
         iterations += 1;
         let g = jac.transpose() * &r;
@@ -165,7 +205,10 @@ pub fn solve_lazy(
                     cost = new_cost;
                     lambda = (lambda / d.down).max(d.min);
                     accepted = true;
-                    if small_gain || small_step {
+                    let stalled = opts.stall.is_some_and(|s| {
+                        iterations >= s.window && s.stalled(costs[iterations - s.window], new_cost)
+                    });
+                    if small_gain || small_step || stalled {
                         converged = true;
                     }
                     break;
@@ -173,6 +216,7 @@ pub fn solve_lazy(
                 _ => lambda *= d.up,
             }
         }
+        costs.push(cost);
         if converged {
             break;
         }
@@ -258,6 +302,65 @@ mod tests {
             res_calls.get()
         );
         assert!(jac_calls.get() <= res.iterations + 1);
+    }
+
+    /// A crawl: r = 1/(1 + x) falls for ever as x grows, each step bounded to 0.1, so every
+    /// step gains a little more than the tolerances ask (a relative 1e-13) and the fit runs
+    /// out of iterations. The stall rule stops it as soon as five steps gain less than asked:
+    /// the absolute floor, or a share of the excess over a floor cost, whichever is more.
+    #[test]
+    fn a_stall_stops_a_crawl_the_tolerances_let_run() {
+        let run = |stall: Option<Stall>| {
+            solve(
+                &[1.0],
+                |p: &[f64]| -> Evaluation {
+                    let x = p[0];
+                    let r = DVector::from_vec(vec![1.0 / (1.0 + x)]);
+                    let j = DMatrix::from_row_slice(1, 1, &[-1.0 / (1.0 + x).powi(2)]);
+                    Some((r, j))
+                },
+                LmOptions {
+                    max_iterations: 200,
+                    max_step: 0.1,
+                    stall,
+                    ..Default::default()
+                },
+            )
+            .unwrap()
+        };
+        // Over five iterations: (min_gain, excess_fraction, floor_cost, above_cost).
+        let stalled = |min_gain, excess_fraction, floor_cost, above_cost| {
+            run(Some(Stall {
+                window: 5,
+                min_gain,
+                excess_fraction,
+                floor_cost,
+                above_cost,
+            }))
+        };
+        let free = run(None);
+        assert_eq!(free.iterations, 200);
+        assert!(!free.converged);
+        // Five steps (0.5 in x) gain 1/(x + 0.5)² − 1/(x + 1)²: 0.09 at x = 1.5, 0.01 near
+        // x = 3.9, where an absolute floor of 0.01 stops the fit.
+        let absolute = stalled(0.01, 0.0, 0.0, 0.0);
+        assert!(absolute.converged);
+        let x = absolute.params[0];
+        assert!((3.0..4.5).contains(&x), "stopped at x = {x}");
+        // Half the excess over a floor of 0 (the cost itself) over five steps stops it near
+        // x = 1.8, well before the absolute rule alone would.
+        let share = stalled(0.0, 0.5, 0.0, 0.0);
+        assert!(share.converged);
+        let x = share.params[0];
+        assert!((1.5..2.5).contains(&x), "stopped at x = {x}");
+        // Measured against a floor just under the cost, the same share asks for almost
+        // nothing: the fit runs on to the absolute rule.
+        let near_floor = stalled(0.01, 0.5, 0.05, 0.0);
+        assert!(near_floor.params[0] > 3.0, "{}", near_floor.params[0]);
+        // Below `above_cost` nothing stalls: the crawl runs out of iterations again.
+        let below = stalled(0.01, 0.5, 0.0, 0.3);
+        assert_eq!(below.iterations, 200);
+        assert!(!below.converged);
     }
 
     /// Rosenbrock as least squares: r = (10(y − x²), 1 − x); minimum at (1, 1).
