@@ -715,12 +715,12 @@ impl ModelSpec {
             fork(&mut out, &[true], |s, f| s.mains_harmonics = f);
         }
         if first.has(Effect::ThermalDrift) && first.drift == DriftForm::Deflection {
-            let curved = [
+            let other_drifts = [
                 DriftForm::CurvedDeflection,
                 DriftForm::Surface,
                 DriftForm::SurfaceAndDeflection,
             ];
-            fork(&mut out, &curved, |s, f| s.drift = f);
+            fork(&mut out, &other_drifts, |s, f| s.drift = f);
         }
         out
     }
