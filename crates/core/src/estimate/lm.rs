@@ -40,12 +40,14 @@ pub struct LmOptions {
 /// under a hundredth in the rest. A fit at or below `above_cost` never stalls.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Stall {
-    /// Iterations the gain is summed over.
+    /// Iterations the gain is summed over (0: the rule is off).
     pub window: usize,
     /// The least cost those iterations must gain together.
     pub min_gain: f64,
     /// The least share of the cost's excess over `floor_cost` they must gain.
     pub excess_fraction: f64,
+    /// The cost a model that explains everything but the noise reaches (a χ² of N samples:
+    /// N).
     pub floor_cost: f64,
     /// Only a fit whose cost is still above this may stall: below it every unit may matter,
     /// and the fit runs to the tolerances.
@@ -205,8 +207,10 @@ pub fn solve_lazy(
                     cost = new_cost;
                     lambda = (lambda / d.down).max(d.min);
                     accepted = true;
+                    // The cost `window` iterations back; none yet, or a window of 0: no stall.
                     let stalled = opts.stall.is_some_and(|s| {
-                        iterations >= s.window && s.stalled(costs[iterations - s.window], new_cost)
+                        let back = iterations.checked_sub(s.window).and_then(|i| costs.get(i));
+                        back.is_some_and(|&before| s.stalled(before, new_cost))
                     });
                     if small_gain || small_step || stalled {
                         converged = true;
@@ -361,6 +365,16 @@ mod tests {
         let below = stalled(0.01, 0.5, 0.0, 0.3);
         assert_eq!(below.iterations, 200);
         assert!(!below.converged);
+        // A window of no iterations has no cost to look back to: the rule is off, and the
+        // fit runs as without it (it once indexed past the end of the history).
+        let no_window = run(Some(Stall {
+            window: 0,
+            min_gain: 0.01,
+            excess_fraction: 0.5,
+            floor_cost: 0.0,
+            above_cost: 0.0,
+        }));
+        assert_eq!(no_window.iterations, 200);
     }
 
     /// Rosenbrock as least squares: r = (10(y − x²), 1 − x); minimum at (1, 1).
