@@ -196,23 +196,7 @@ fn fit_params_tied(
             Some(q) => &j - q * (q.transpose() * &j),
         })
     };
-    let lm_opts = LmOptions {
-        max_iterations: opts.max_iterations,
-        max_step: opts.max_step,
-        cost_tolerance: 1e-7,
-        cost_tolerance_abs: 0.01,
-        step_tolerance: 1e-7,
-        // Gentler than the estimators' default: on a real record far from the nominal model
-        // (the shared JPK gel) the default schedule settles in worse basins.
-        damping: Damping {
-            down: 4.0,
-            up: 8.0,
-            min: 1e-9,
-            max: 1e12,
-            diag_floor: 1e-12,
-        },
-        stall: opts.stall,
-    };
+    let lm_opts = lm_options(opts);
     // Every Jacobian is a finite-difference one. Broyden's rank-one update for two of every
     // three accepted steps was tried (2026-11-26, efebcae–51621b0; exact again wherever an
     // updated step failed or the fit would stop). In every fit it took the concealed corpus's
@@ -243,6 +227,27 @@ fn fit_params_tied(
         jacobian: res.jacobian,
         linear_jacobian: linear_jacobian.into_inner(),
     })
+}
+
+/// The solver settings of a diagnosis fit with options `opts`.
+pub(crate) fn lm_options(opts: FitOptions) -> LmOptions {
+    LmOptions {
+        max_iterations: opts.max_iterations,
+        max_step: opts.max_step,
+        cost_tolerance: 1e-7,
+        cost_tolerance_abs: 0.01,
+        step_tolerance: 1e-7,
+        // Gentler than the estimators' default: on a real record far from the nominal model
+        // (the shared JPK gel) the default schedule settles in worse basins.
+        damping: Damping {
+            down: 4.0,
+            up: 8.0,
+            min: 1e-9,
+            max: 1e12,
+            diag_floor: 1e-12,
+        },
+        stall: opts.stall,
+    }
 }
 
 /// Restarts a fit from where it stopped while that still gains: Levenberg–Marquardt can stall
