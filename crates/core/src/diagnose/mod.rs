@@ -331,35 +331,6 @@ pub struct LookAlike {
 /// "positive" on Kass & Raftery's scale (1995), short of "strong".
 pub const LOOK_ALIKE_GAP: f64 = 6.0;
 
-/// The options of a candidate's refit on `n_train` train samples (a model at the floor
-/// reaches a χ² of `n_train`).
-///
-/// A candidate's refit still above twice the floor that gains, over 5 iterations, less
-/// than 2 χ² units or a thousandth of its excess over the floor (whichever is more) is
-/// crawling along a valley floor, and stops (`Stall`). On the concealed corpus's masked
-/// creep case half the refits ran all 40 iterations, most of them wrong candidates
-/// 35 000–50 000 χ² units above the right one, gaining 5–50 units per five iterations:
-/// 70 % of its refits' simulations. The rule took them from 11 881 to 6 319 (the
-/// diagnosis from 13.7 s to 8.5 s); over the corpus's 59 cases and the independent
-/// simulator's 64 recordings it changed no name, and the independent ones took 30 % less
-/// time. Below twice the floor every unit may tip a judgement (the BIC price is ln N,
-/// about 10, per parameter), and there the refit runs to the tolerances: stopped there
-/// too, an independent simulator's null record moved its renominal fit to another basin
-/// and named a creep at 44.7 held-out χ² units.
-fn refit_options(n_train: f64) -> FitOptions {
-    FitOptions {
-        max_iterations: 40,
-        max_step: 1.0,
-        stall: Some(Stall {
-            window: 5,
-            min_gain: 2.0,
-            excess_fraction: 1e-3,
-            floor_cost: n_train,
-            above_cost: 2.0 * n_train,
-        }),
-    }
-}
-
 /// What separates two look-alikes, for the pairs the catalog knows to trade (either order).
 fn separated_by(a: Effect, b: Effect) -> Option<&'static str> {
     use Effect::*;
@@ -671,6 +642,35 @@ fn spread_material(
 /// Diagnoses a recording, one simulation after the other.
 pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis, DiagnoseError> {
     diagnose_with(rec, opts, &fan::Serial)
+}
+
+/// The options of a candidate's refit on `n_train` train samples (a model at the floor
+/// reaches a χ² of `n_train`).
+///
+/// A candidate's refit still above twice the floor that gains, over 5 iterations, less
+/// than 2 χ² units or a thousandth of its excess over the floor (whichever is more) is
+/// crawling along a valley floor, and stops (`Stall`). On the concealed corpus's masked
+/// creep case half the refits ran all 40 iterations, most of them wrong candidates
+/// 35 000–50 000 χ² units above the right one, gaining 5–50 units per five iterations:
+/// 70 % of its refits' simulations. The rule took them from 11 881 to 6 319 (the
+/// diagnosis from 13.7 s to 8.5 s); over the corpus's 59 cases and the independent
+/// simulator's 64 recordings it changed no name, and the independent ones took 30 % less
+/// time. Below twice the floor every unit may tip a judgement (the BIC price is ln N,
+/// about 10, per parameter), and there the refit runs to the tolerances: stopped there
+/// too, an independent simulator's null record moved its renominal fit to another basin
+/// and named a creep at 44.7 held-out χ² units.
+fn refit_options(n_train: f64) -> FitOptions {
+    FitOptions {
+        max_iterations: 40,
+        max_step: 1.0,
+        stall: Some(Stall {
+            window: 5,
+            min_gain: 2.0,
+            excess_fraction: 1e-3,
+            floor_cost: n_train,
+            above_cost: 2.0 * n_train,
+        }),
+    }
 }
 
 /// Diagnoses a recording, handing independent simulations (Jacobian columns, start grids) to
