@@ -264,6 +264,25 @@ pub fn best_of(
     best.ok_or(last)
 }
 
+/// Rosenbrock's function as least squares, `r = (10(y − x²), 1 − x)` with its minimum at
+/// (1, 1), behind `floor` residuals of 1 that no parameter moves (a cost floor of `floor`,
+/// as the noise puts under a fit): the classic curved valley, in which a solver's steps
+/// bend and each gains little. For the tests here and the diagnosis's.
+#[cfg(test)]
+pub(crate) fn rosenbrock_above_floor(floor: usize) -> impl Fn(&[f64]) -> Evaluation {
+    move |p: &[f64]| {
+        let (x, y) = (p[0], p[1]);
+        let mut r = DVector::from_element(floor + 2, 1.0);
+        r[floor] = 10.0 * (y - x * x);
+        r[floor + 1] = 1.0 - x;
+        let mut j = DMatrix::zeros(floor + 2, 2);
+        j[(floor, 0)] = -20.0 * x;
+        j[(floor, 1)] = 10.0;
+        j[(floor + 1, 0)] = -1.0;
+        Some((r, j))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -380,15 +399,9 @@ mod tests {
     /// Rosenbrock as least squares: r = (10(y − x²), 1 − x); minimum at (1, 1).
     #[test]
     fn finds_rosenbrock_minimum() {
-        let eval = |p: &[f64]| -> Evaluation {
-            let (x, y) = (p[0], p[1]);
-            let r = DVector::from_vec(vec![10.0 * (y - x * x), 1.0 - x]);
-            let j = DMatrix::from_row_slice(2, 2, &[-20.0 * x, 10.0, -1.0, 0.0]);
-            Some((r, j))
-        };
         let res = solve(
             &[-1.2, 1.0],
-            eval,
+            rosenbrock_above_floor(0),
             LmOptions {
                 max_step: 10.0,
                 ..Default::default()
