@@ -699,8 +699,23 @@ pub fn fit_recording_with(
     // An optional channel's missing samples (the indentation's reference, say) are filled
     // from their neighbours, and the notes say where (`recording::gaps`).
     let (filled, gaps) = crate::recording::gaps::with_gaps_filled(rec);
-    let rec: &Recording = &filled;
-    let mut prepared = prepare_with(rec, fan)?;
+    let prepared = prepare_with(&filled, fan)?;
+    let mut fit = fit_prepared(&filled, prepared, terms, refine_deflection)?;
+    fit.notes
+        .splice(0..0, gaps.channels.iter().map(|g| g.to_string()));
+    Ok(fit)
+}
+
+/// [`fit_recording_with`] from the pair [`prepare_with`] made of `rec`, whose gaps are
+/// already filled. For a caller that needs the pair even where the fit fails: the
+/// diagnosis falls back on its contact point, and preparing twice cost it a second round
+/// of the pair's fits.
+pub fn fit_prepared(
+    rec: &Recording,
+    mut prepared: Prepared,
+    terms: Terms,
+    refine_deflection: bool,
+) -> Result<RecordingFit, FitError> {
     let (u, y, fs) = (&prepared.u, &prepared.y, prepared.fs_hz);
     let len = u.len();
     let orders: Vec<usize> = match terms {
@@ -708,7 +723,7 @@ pub fn fit_recording_with(
         Terms::Auto { max } => (1..=max.max(1)).collect(),
     };
     let sampling = Sampling::FirstOrderHold { fs_hz: fs };
-    let mut notes: Vec<String> = gaps.channels.iter().map(|g| g.to_string()).collect();
+    let mut notes: Vec<String> = Vec::new();
     let periodic = detect_periodic(&prepared.drive);
 
     // One pass of order selection over `range` with `fit_order`.
@@ -1094,5 +1109,29 @@ mod tests {
         let bits = |x: &[f64]| x.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
         assert_eq!(bits(&a.u), bits(&b.u));
         assert_eq!(bits(&a.y), bits(&b.y));
+    }
+
+    /// A fit of a recording whose optional channel dropped a sample says so first in its
+    /// notes, whatever notes the fit itself adds after it.
+    #[test]
+    fn a_filled_gap_is_the_first_note_of_the_fit() {
+        let fs = 5000.0;
+        let mut rec = simulate(&nominal_twin(1), &protocol_drive(fs).0, fs, None);
+        // A height sensor that reads the commanded position, and dropped one sample.
+        let gain = rec.meta.piezo.as_ref().unwrap().gain_nm_per_v;
+        let mut height: Vec<f64> = match &rec.drive {
+            crate::recording::Drive::Volts(v) => v.iter().map(|v| v * gain).collect(),
+            crate::recording::Drive::Nanometres(z) => z.clone(),
+        };
+        height[1234] = f64::NAN;
+        rec.measured_height_nm = Some(height);
+        let fit = fit_recording(&rec, Terms::Fixed(2)).unwrap();
+        assert!(
+            fit.notes[0].starts_with(crate::recording::gaps::HEIGHT),
+            "{:?}",
+            fit.notes
+        );
+        assert!(fit.notes[0].contains("1 of"), "{}", fit.notes[0]);
+        assert!(fit.notes.len() > 1, "the fit's own notes are gone");
     }
 }

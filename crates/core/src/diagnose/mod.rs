@@ -715,19 +715,19 @@ pub fn diagnose_with(
     };
     let y = rec.deflection_v.clone();
     let (contact0, base, sigma_head) = find_contact(&y)?;
-    // The offline fitter, run once: its contact point is the better one where long-range
-    // forces make the force creep out of the noise (it treats the contact as a model
-    // parameter), the simple threshold above is the fallback; its material is the nominal
-    // twin's first start.
-    let offline = analysis::fit_recording_with(rec, analysis::Terms::Fixed(terms), false, fan);
-    let contact = match &offline {
-        Ok(f) => Some(f.prepared.contact_index),
-        Err(_) => analysis::prepare_with(rec, fan)
-            .ok()
-            .map(|p| p.contact_index),
-    }
-    .filter(|&c| c > 0 && c < n)
-    .unwrap_or(contact0);
+    // The offline fitter's pair, prepared once: its contact point is the better one where
+    // long-range forces make the force creep out of the noise (it treats the contact as a
+    // model parameter), the simple threshold above is the fallback; the fit's material is
+    // the nominal twin's first start. The pair's contact stands even where that fit fails.
+    let prepared = analysis::prepare_with(rec, fan);
+    let contact = prepared
+        .as_ref()
+        .ok()
+        .map(|p| p.contact_index)
+        .filter(|&c| c > 0 && c < n)
+        .unwrap_or(contact0);
+    let offline =
+        prepared.and_then(|p| analysis::fit_prepared(rec, p, analysis::Terms::Fixed(terms), false));
     // An adhesive snap-in pulls the lever below its free level ahead of the contact found
     // above, which looks for the rise. The free lever, and the noise floor measured on it,
     // end before the snap: measured across it, the floor of an independent simulator's
