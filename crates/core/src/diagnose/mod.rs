@@ -1105,6 +1105,17 @@ pub fn diagnose_with(
             let spec = nominal.with(&[*e]);
             let mut st = vec![th_s.clone()];
             st.extend(ctx.starts(&problem, nom, *e, fan).into_iter().take(1));
+            // Not kept, measured (2026-11-28): a start at the lag the hard reference reads
+            // (`reference_lag`) for the candidates that trade with it. On an independent
+            // simulator's drag beside a reference (a first-order stage at 5.8 kHz, 0.22
+            // samples, which the reference read as 0.217) the nominal fit had taken no lag,
+            // the drag's lead cancelling the stage's, and its refit at the reference's lag
+            // fitted the deflection worse (the drag missing), so nothing moved it. From that
+            // start the drag's train χ² fell by 186 more, its evidence rose from 412 to 4146
+            // (3706 of it the reference's) and the lag came out 45 µs; no name changed on the
+            // two proxy sets' 18 reference records or the 16 reference nulls (none named).
+            // But the pair it joins stayed wrong: a 3.2 kHz mode of Q 42 took 1573 units of
+            // the reference, a form of the chain the twin's stage does not have.
             if distorted {
                 // A nominal fit far above the floor has bent its parameters to mimic what is
                 // missing; start the candidate from the undistorted first estimate as well.
