@@ -710,7 +710,7 @@ pub fn fit_recording_with(
 /// already filled. For a caller that needs the pair even where the fit fails: the
 /// diagnosis falls back on its contact point, and preparing twice cost it a second round
 /// of the pair's fits.
-pub fn fit_prepared(
+pub(crate) fn fit_prepared(
     rec: &Recording,
     mut prepared: Prepared,
     terms: Terms,
@@ -1118,11 +1118,9 @@ mod tests {
         let fs = 5000.0;
         let mut rec = simulate(&nominal_twin(1), &protocol_drive(fs).0, fs, None);
         // A height sensor that reads the commanded position, and dropped one sample.
-        let gain = rec.meta.piezo.as_ref().unwrap().gain_nm_per_v;
-        let mut height: Vec<f64> = match &rec.drive {
-            crate::recording::Drive::Volts(v) => v.iter().map(|v| v * gain).collect(),
-            crate::recording::Drive::Nanometres(z) => z.clone(),
-        };
+        let mut height = rec
+            .drive_nm()
+            .expect("the corpus twin declares its piezo gain");
         height[1234] = f64::NAN;
         rec.measured_height_nm = Some(height);
         let fit = fit_recording(&rec, Terms::Fixed(2)).unwrap();
