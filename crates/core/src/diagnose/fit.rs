@@ -323,27 +323,36 @@ pub fn met_terms(spec: &ModelSpec, th: &[f64]) -> Vec<(usize, usize)> {
     ties
 }
 
+/// How many records long a retardation time must be for [`spent_term_starts`] to read its
+/// term as a flow: over the record `J·(1 − e^(−t/τ))` is then `J·t/τ` to within 2 %, and only
+/// the slope is seen.
+pub const FLOW_RECORDS: f64 = 30.0;
+
 /// Starts that put back to use a Prony term the nominal fit at `th` has spent: one met at
-/// another's retardation time ([`met_terms`]: the later of the pair), or one faster than a
-/// sample (`fs_hz`), which the record sees only as instantaneous compliance. Either is a
-/// term the model has and does not use, and Gauss–Newton does not leave such a basin: the
-/// met pair's split and a sub-sample term's τ are all but flat directions. The first spent
-/// term is placed, one start each, between each two neighbouring terms in use (their
-/// geometric mean), a sixth of the fastest (no faster than two samples) and six times the
-/// slowest (no slower than half of `record_s`), at a tenth of the whole compliance; its
-/// compliance moves to its partner or, below a sample, to the instantaneous one, so that
-/// each start reads the record as the fit did. None where no term is spent.
+/// another's retardation time ([`met_terms`]: the later of the pair), one faster than a
+/// sample (`fs_hz`), which the record sees only as instantaneous compliance, or one slower
+/// than [`FLOW_RECORDS`] records, which it sees only as a flow `J·t/τ`. Each is a term the
+/// model has and does not use as one, and Gauss–Newton does not leave such a basin: the
+/// met pair's split, a sub-sample term's τ and a flow term's J and τ apart are all but flat
+/// directions. The first spent term is placed, one start each, between each two
+/// neighbouring terms in use (their geometric mean), a sixth of the fastest (no faster than
+/// two samples) and six times the slowest (no slower than half of `record_s`), at a tenth
+/// of the compliance in use; its compliance moves to its partner or, below a sample, to the
+/// instantaneous one, so that each start reads the record as the fit did (a flow term's is
+/// dropped: the record saw only its slope). None where no term is spent.
 pub fn spent_term_starts(spec: &ModelSpec, th: &[f64], fs_hz: f64, record_s: f64) -> Vec<Vec<f64>> {
     let (j, tau) = (|i| spec.term_compliance(i), |i| spec.term_tau(i));
     let sub_sample = |i: usize| th[tau(i)].exp() < 1.0 / fs_hz;
+    let flow = |i: usize| th[tau(i)].exp() > FLOW_RECORDS * record_s;
     let met = met_terms(spec, th);
     // The met lead's compliance (its index in θ) where the term `i` is its follower.
     let partner = |i: usize| met.iter().find(|&&(_, f)| f == j(i)).map(|&(a, _)| a);
-    let Some(spent) = (0..spec.terms).find(|&i| sub_sample(i) || partner(i).is_some()) else {
+    let is_spent = |i: usize| sub_sample(i) || flow(i) || partner(i).is_some();
+    let Some(spent) = (0..spec.terms).find(|&i| is_spent(i)) else {
         return vec![];
     };
     let mut in_use: Vec<f64> = (0..spec.terms)
-        .filter(|&i| i != spent && !sub_sample(i) && partner(i).is_none())
+        .filter(|&i| !is_spent(i))
         .map(|i| th[tau(i)].exp())
         .collect();
     in_use.sort_by(f64::total_cmp);
@@ -358,14 +367,20 @@ pub fn spent_term_starts(spec: &ModelSpec, th: &[f64], fs_hz: f64, record_s: f64
         places.push(slowest * 6.0);
     }
     let j_of = |i: usize| th[i].exp();
-    let whole = j_of(2) + (0..spec.terms).map(|i| j_of(j(i))).sum::<f64>();
+    let whole = j_of(2)
+        + (0..spec.terms)
+            .filter(|&i| !flow(i))
+            .map(|i| j_of(j(i)))
+            .sum::<f64>();
     // Where the spent term's compliance goes: its met partner's J, or the instantaneous J0.
     let keeper = partner(spent).unwrap_or(2);
     places
         .into_iter()
         .map(|place| {
             let mut t = th.to_vec();
-            t[keeper] = (j_of(keeper) + j_of(j(spent))).ln();
+            if !flow(spent) {
+                t[keeper] = (j_of(keeper) + j_of(j(spent))).ln();
+            }
             t[j(spent)] = (0.1 * whole).ln();
             t[tau(spent)] = place.ln();
             t
@@ -725,9 +740,10 @@ mod tests {
     }
 
     /// A spent term is placed between the terms in use, a sixth of the fastest and six
-    /// times the slowest, at a tenth of the whole compliance, its own compliance kept by its
-    /// met partner or, below a sample, by the instantaneous compliance; places out of the
-    /// record's reach are left out, and nothing is spent in a fit that uses every term.
+    /// times the slowest, at a tenth of the compliance in use, its own compliance kept by its
+    /// met partner or, below a sample, by the instantaneous compliance, or dropped for a
+    /// flow; places out of the record's reach are left out, and nothing is spent in a fit
+    /// that uses every term.
     #[test]
     fn a_spent_term_is_put_back_between_and_beside_the_terms_in_use() {
         let (fs, record_s) = (5000.0, 4.0);
@@ -772,6 +788,28 @@ mod tests {
             close(starts[0][2].exp(), 1.2e-6),
             "J0 takes the sub-sample term's"
         );
+        // A flow (an independent simulator's hysteresis record: 1.7·10⁻⁴ Pa⁻¹ at 13 888 s in
+        // a 2.5 s record): its compliance is dropped, not handed on, and the tenth it starts
+        // at is of the compliance in use.
+        let (spec, mut th) = nominal(&[13_888.0, 12.2e-3, 3e-3]);
+        th[spec.term_compliance(0)] = (1.7e-4f64).ln();
+        let starts = spent_term_starts(&spec, &th, fs, 2.5);
+        let places: Vec<f64> = starts.iter().map(|t| t[spec.term_tau(0)].exp()).collect();
+        let expect = [(3e-3 * 12.2e-3f64).sqrt(), 3e-3 / 6.0, 12.2e-3 * 6.0];
+        assert_eq!(places.len(), 3, "{places:?}");
+        for (p, e) in places.iter().zip(expect) {
+            assert!(close(*p, e), "{places:?} against {expect:?}");
+        }
+        for t in &starts {
+            assert!(close(
+                t[spec.term_compliance(0)].exp(),
+                0.1 * (1e-6 + 2.0 * 2e-7)
+            ));
+            assert!(close(t[2].exp(), 1e-6), "J0 as it was");
+        }
+        // Slower than the record but short of a flow: in use.
+        let (spec, th) = nominal(&[0.9 * FLOW_RECORDS * 2.5, 12.2e-3, 3e-3]);
+        assert!(spent_term_starts(&spec, &th, fs, 2.5).is_empty());
         // Every term in use: no start.
         let (spec, th) = nominal(&[1e-3, 1e-2, 1e-1]);
         assert!(spent_term_starts(&spec, &th, fs, record_s).is_empty());
