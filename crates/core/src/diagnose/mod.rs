@@ -1520,6 +1520,16 @@ pub fn diagnose_with(
             let pairs = fan::map(fan, jobs.len(), |j| {
                 let (first, (b, fb)) = jobs[j];
                 let spec = ModelSpec::pair_of(&first.spec, &fb.spec);
+                // One start: the first's nominal part. The partner's as a second start was
+                // tried (2026-11-28, not kept). On an independent simulator's hysteresis
+                // under a larger mains pick-up (fresh rec14) the pair from the mains fit's
+                // nominal part ended at a train χ² of 66 531, four times the mains fit's,
+                // and a retardation time was named second; from the hysteresis fit's it
+                // ended at 16 455 and the hysteresis was named (4081 held-out units). But
+                // the better pair fits named three wrong second effects elsewhere (fresh
+                // rec09 an adhesion beside its tip, old rec08 a tip beside its drift, old
+                // rec09 a 3 kHz mode beside its drag), and the pair stage's simulations
+                // doubled (the sets' diagnoses 8–15 % longer).
                 let start = combine(&spec, first, fb);
                 fit_model(&problem, &spec, &[start], pair_opts, fan).map(|fp| (*b, fp))
             });
