@@ -2868,7 +2868,6 @@ impl StartContext {
             Effect::PiezoHysteresis => vec![
                 with(&[(0.02f64).ln(), (1.0 / self.drive_range).ln(), 0.0]),
                 with(&[(0.05f64).ln(), (3.0 / self.drive_range).ln(), 0.5]),
-                with(&[(0.02f64).ln(), (3.0 / self.drive_range).ln(), 2.0]),
             ],
             Effect::PiezoCreep => [0.05, 0.5, 0.3 * self.record_s]
                 .iter()
