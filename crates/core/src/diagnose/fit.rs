@@ -757,15 +757,23 @@ mod tests {
         };
         let whole = 1e-6 + 3.0 * 2e-7;
         let close = |a: f64, b: f64| (a - b).abs() < 1e-9 * b.abs();
+        // The spent term `i`'s retardation time in each start is one of `expect`, in order.
+        let assert_places = |starts: &[Vec<f64>], spec: &ModelSpec, i: usize, expect: &[f64]| {
+            let places: Vec<f64> = starts.iter().map(|t| t[spec.term_tau(i)].exp()).collect();
+            assert_eq!(places.len(), expect.len(), "{places:?}");
+            for (p, e) in places.iter().zip(expect) {
+                assert!(close(*p, *e), "{places:?} against {expect:?}");
+            }
+        };
         // Met at 91 ms (the later of the pair spent) beside 5.86 ms.
         let (spec, th) = nominal(&[91.5e-3, 91.4e-3, 5.86e-3]);
         let starts = spent_term_starts(&spec, &th, fs, record_s);
-        let places: Vec<f64> = starts.iter().map(|t| t[spec.term_tau(1)].exp()).collect();
-        let expect = [(5.86e-3 * 91.5e-3f64).sqrt(), 5.86e-3 / 6.0, 91.5e-3 * 6.0];
-        assert_eq!(places.len(), 3, "{places:?}");
-        for (p, e) in places.iter().zip(expect) {
-            assert!(close(*p, e), "{places:?} against {expect:?}");
-        }
+        assert_places(
+            &starts,
+            &spec,
+            1,
+            &[(5.86e-3 * 91.5e-3f64).sqrt(), 5.86e-3 / 6.0, 91.5e-3 * 6.0],
+        );
         for t in &starts {
             assert!(close(t[spec.term_compliance(1)].exp(), 0.1 * whole));
             assert!(
@@ -778,12 +786,12 @@ mod tests {
         // is past half the record and is left out.
         let (spec, th) = nominal(&[413e-3, 8.2e-3, 57e-6]);
         let starts = spent_term_starts(&spec, &th, 10_000.0, 2.0);
-        let places: Vec<f64> = starts.iter().map(|t| t[spec.term_tau(2)].exp()).collect();
-        let expect = [(8.2e-3 * 413e-3f64).sqrt(), 8.2e-3 / 6.0];
-        assert_eq!(places.len(), 2, "{places:?}");
-        for (p, e) in places.iter().zip(expect) {
-            assert!(close(*p, e), "{places:?} against {expect:?}");
-        }
+        assert_places(
+            &starts,
+            &spec,
+            2,
+            &[(8.2e-3 * 413e-3f64).sqrt(), 8.2e-3 / 6.0],
+        );
         assert!(
             close(starts[0][2].exp(), 1.2e-6),
             "J0 takes the sub-sample term's"
@@ -794,12 +802,12 @@ mod tests {
         let (spec, mut th) = nominal(&[13_888.0, 12.2e-3, 3e-3]);
         th[spec.term_compliance(0)] = (1.7e-4f64).ln();
         let starts = spent_term_starts(&spec, &th, fs, 2.5);
-        let places: Vec<f64> = starts.iter().map(|t| t[spec.term_tau(0)].exp()).collect();
-        let expect = [(3e-3 * 12.2e-3f64).sqrt(), 3e-3 / 6.0, 12.2e-3 * 6.0];
-        assert_eq!(places.len(), 3, "{places:?}");
-        for (p, e) in places.iter().zip(expect) {
-            assert!(close(*p, e), "{places:?} against {expect:?}");
-        }
+        assert_places(
+            &starts,
+            &spec,
+            0,
+            &[(3e-3 * 12.2e-3f64).sqrt(), 3e-3 / 6.0, 12.2e-3 * 6.0],
+        );
         for t in &starts {
             assert!(close(
                 t[spec.term_compliance(0)].exp(),

@@ -1540,14 +1540,10 @@ pub fn diagnose_with(
                 };
                 let mut fp = fit_from(first, fb);
                 if fp.as_ref().is_none_or(|f| f.eval.chi2_train > first_alone) {
-                    if let Some(again) = fit_from(fb, first) {
-                        if fp
-                            .as_ref()
-                            .is_none_or(|f| again.eval.chi2_train < f.eval.chi2_train)
-                        {
-                            fp = Some(again);
-                        }
-                    }
+                    fp = [fp, fit_from(fb, first)]
+                        .into_iter()
+                        .flatten()
+                        .min_by(|x, y| x.eval.chi2_train.total_cmp(&y.eval.chi2_train));
                 }
                 fp.map(|fp| (*b, fp))
             });
