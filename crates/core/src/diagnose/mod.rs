@@ -155,7 +155,7 @@ pub struct EffectReport {
     /// ([`model::ModelSpec::chain_differs`]); negative where the reference refutes it.
     pub reference_evidence: Option<f64>,
     /// Why a candidate that beat every margin is not named all the same (a mode fitted
-    /// beyond what the record samples).
+    /// beyond what the record samples, a drag fitted negative).
     pub refused: Option<&'static str>,
     pub description: &'static str,
 }
@@ -3699,7 +3699,8 @@ mod tests {
             .iter()
             .find(|e| e.id == "hydrodynamic_drag")
             .unwrap();
-        assert!(drag.refused.is_some() && !drag.significant, "{drag:?}");
+        assert!(!drag.significant, "{drag:?}");
+        assert_eq!(drag.refused, Some(super::DRAG_ALONG_MOTION));
         let c = &drag.params[0];
         assert!(c.ci95[1] < 0.0, "{c:?}");
     }
