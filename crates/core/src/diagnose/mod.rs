@@ -1401,15 +1401,7 @@ pub fn diagnose_with(
         let beats = train_drop > penalty
             && held_drop > th.held_base + 2.0 * k
             && held_drop > th.held_fraction * excess;
-        let refused = if !beats {
-            None
-        } else if mode_beyond_band(&cand.spec, &cand.theta, fs) {
-            Some(MODE_BEYOND_BAND)
-        } else if drag_along_motion(&problem, cand) {
-            Some(DRAG_ALONG_MOTION)
-        } else {
-            None
-        };
+        let refused = if beats { refusal(&problem, cand) } else { None };
         Judgement {
             wins: beats && refused.is_none(),
             refused,
@@ -2373,6 +2365,19 @@ fn params_of(problem: &Problem, f: &Fitted, e: Effect) -> Vec<Param> {
             ci95,
         })
         .collect()
+}
+
+/// Why a fit `f` is not physics the record shows, however well it fits: a mode above the
+/// sampling rate ([`mode_beyond_band`]) or a drag along the motion ([`drag_along_motion`]);
+/// `None` where it may be named.
+fn refusal(problem: &Problem, f: &Fitted) -> Option<&'static str> {
+    if mode_beyond_band(&f.spec, &f.theta, problem.fs_hz) {
+        Some(MODE_BEYOND_BAND)
+    } else if drag_along_motion(problem, f) {
+        Some(DRAG_ALONG_MOTION)
+    } else {
+        None
+    }
 }
 
 /// Whether θ puts an `instrument_resonance` above the sampling rate `fs`, twice the highest

@@ -605,17 +605,15 @@ const DAMPING_SHOWS_FROM_LAG: f64 = 0.25;
 ///
 /// Not kept, measured (2026-11-28): holding the damping too where the start puts it at a
 /// bound of [`ACTUATOR_Q`] (`|sin q_phase| < 0.01`), where the map is flat, as a first-order
-/// stage puts the nominal fit's. On an independent simulator's 202.5 Hz stage mode (pole
-/// Q 13, beside a 194 Hz line) the peaking refit started at 205 Hz, Q 20 from such a nominal
-/// fit; the damping's `JᵀJ` was 4·10⁻⁹ against 1.9·10¹⁰, its step past the bound at every λ,
-/// and the solver moved nothing else (see `estimate::lm::solve_lazy`): the refit stopped at
-/// its start, 34 821 χ² units up, and a hysteresis was named. Held, the mode came out at
-/// 202.3 Hz, Q 10.5, alone, held-out NRMSE 0.0129 → 0.0053. The concealed corpus was
-/// unchanged (its twin's stage is never at a bound). But on the same third proxy set a
-/// detector's quadratic term went unnamed (its screening 20 against a price of 29, the
-/// nominal fit barely moved), so 22 of 28 either way, and a 1/f null of the fresh set had a
-/// creep named (held-out drop 44.7 against the 43.9 it must beat; at HEAD 43.0). That null
-/// sits at the edge of its guard, and any change to the nominal fit's path tips it.
+/// stage puts the nominal fit's — the other cure for the stopped refit that
+/// `estimate::lm::solve_lazy` records (an independent simulator's 202.5 Hz stage mode, named
+/// a hysteresis). Held, the mode came out at 202.3 Hz, Q 10.5, alone, held-out NRMSE
+/// 0.0129 → 0.0053 (floor 0.0051). The concealed corpus was unchanged (its twin's stage is
+/// never at a bound). But on that simulator's third proxy set a detector's quadratic term
+/// went unnamed (its screening 20 against a price of 29, the nominal fit barely moved), so
+/// 22 of 28 either way, and a 1/f null of its fresh set had a creep named (held-out drop
+/// 44.7 against the 43.9 it must beat; 43.0 at 7dc5cf3). That null sits at the edge of its
+/// guard, and any change to the nominal fit's path tips it.
 pub(crate) fn frees_parameter(i: usize, lag: usize, start: &[f64], hold_dynamics: bool) -> bool {
     if hold_dynamics {
         i != lag && i != lag + 1
