@@ -3840,7 +3840,7 @@ mod tests {
             beta: 0.5,
             gamma: 0.2,
         });
-        let fs = 5000.0;
+        let fs = 4000.0;
         let (drive_v, _) = protocol_drive(fs);
         let mut volts = simulate(&twin, &drive_v, fs, None);
         let mut nm = volts.clone();
