@@ -394,6 +394,19 @@ impl ReferenceWitness {
         let touching = indicator(&nominal.1);
         let sigma_v = fit.noise_scale(&[&nominal.0, &touching])?;
         let off_surface: Vec<bool> = nominal.1.iter().map(|&c| !c).collect();
+        // Not kept, measured (2026-11-28): whitening the reference instead — generalised
+        // least squares, an AR filter (order by AIC, at most 32, as `noise::measure` picks
+        // the deflection's) fitted to the nominal residual off the surface and applied to the
+        // target and every column — so that each path is weighed against the noise at its
+        // own frequencies, not by one AR(1) factor. On an independent simulator's 1/f null
+        // (fresh rec12, a step) a piezo creep's evidence was 43.0, all of it the reference's
+        // (48.1; the deflection's own −5.0), under a bar of 43.9; whitened, 6.0. But over
+        // the five proxy sets' 43 records with a reference it changed one name: fresh rec07,
+        // a hysteresis under white noise that the reference had named (206.8 χ² units of an
+        // evidence of 134.1), became a creep (34.7). Its reference's off-surface residual still chose
+        // an order of 21–27 with the quiet samples kept 100 to 2000 samples from any
+        // contact, and the filter took the hysteresis's slow evidence down with the noise's.
+        // Another 1/f null (bsr rec05) kept a creep evidence of 188 either way, unnamed.
         fit.inflation = fit
             .correlation_inflation(&[&nominal.0, &touching], &off_surface)
             .unwrap_or(1.0);
