@@ -26,7 +26,7 @@ pub struct NoiseModel {
     pub source: &'static str,
 }
 
-const MAX_ORDER: usize = 32;
+pub(super) const MAX_ORDER: usize = 32;
 
 /// Least-squares residual of `x` after the columns `cols`.
 fn detrend(x: &[f64], cols: &[Vec<f64>]) -> Vec<f64> {
@@ -54,7 +54,7 @@ fn detrend(x: &[f64], cols: &[Vec<f64>]) -> Vec<f64> {
 }
 
 /// Levinson–Durbin: AR coefficients `[1, a1..ap]` and prediction-error variances per order.
-fn levinson(r: &[f64], p: usize) -> Vec<(Vec<f64>, f64)> {
+pub(super) fn levinson(r: &[f64], p: usize) -> Vec<(Vec<f64>, f64)> {
     let mut out = vec![(vec![1.0], r[0])];
     let mut a = vec![1.0];
     let mut err = r[0];
