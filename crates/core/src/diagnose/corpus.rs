@@ -1270,7 +1270,7 @@ fn build(
             pinned.unwrap_or_else(|| sizer.size(k, *target))
         })
         .collect();
-    let searched = sizes.clone();
+    let sized = sizes.clone();
     let mut plan = plan;
     // The case's detector noise is rescaled so its weakest effect meets its target, in two
     // cases. An effect bounded by physics (a third term cannot make the instantaneous
@@ -1378,7 +1378,7 @@ fn build(
         masker: plan.masker,
         recording,
     };
-    (case, searched)
+    (case, sized)
 }
 
 fn notes_table(segments: &[Segment]) -> Table {

@@ -1477,38 +1477,9 @@ impl Problem {
         }
     }
 
-    /// Applies the whitening filter: `x[k] + Σ_{i≥1} a_i·x[k−i]`, the first sample
-    /// repeated before the record (a record at rest).
-    ///
-    /// Each output's sum runs over i in order, a chain of dependent additions as long as the
-    /// filter (22 on the corpus's 1/f floors): evaluated one output at a time, the chain's
-    /// latency made this a tenth of a diagnosis, as it runs on every residual. The sums are
-    /// taken a block of outputs at a time instead, term by term (`out += a_i·x` shifted by
-    /// i, which vectorises): each output still adds its terms in the same order, so the
-    /// result is the same to the bit.
+    /// Applies the floor's whitening filter ([`super::noise::whiten`]).
     pub fn whiten(&self, x: &[f64]) -> Vec<f64> {
-        /// Outputs per block: 4 KiB of them, which stay in the L1 cache over the filter.
-        const BLOCK: usize = 512;
-        let a = &self.whitening;
-        let p = a.len().saturating_sub(1);
-        let n = x.len();
-        let mut out = x.to_vec();
-        for (k, o) in out.iter_mut().enumerate().take(p) {
-            for (i, ai) in a.iter().enumerate().skip(1) {
-                *o += ai * if k >= i { x[k - i] } else { x[0] };
-            }
-        }
-        let mut k0 = p.min(n);
-        while k0 < n {
-            let k1 = (k0 + BLOCK).min(n);
-            for (i, ai) in a.iter().enumerate().skip(1) {
-                for (o, xv) in out[k0..k1].iter_mut().zip(&x[k0 - i..k1 - i]) {
-                    *o += ai * xv;
-                }
-            }
-            k0 = k1;
-        }
-        out
+        super::noise::whiten(&self.whitening, x)
     }
 
     /// Twin simulations run so far.

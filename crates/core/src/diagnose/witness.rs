@@ -46,6 +46,7 @@
 //! noise's wander. The sensor's noise is taken as white: it has no stretch where no model's
 //! path could misfit to measure it on.
 
+use super::noise::{ar_by_aic, detrend, whiten};
 use crate::twin::dynamics::FirstOrder;
 use nalgebra::{DMatrix, DVector};
 
@@ -69,7 +70,7 @@ struct Regression {
 /// A channel's target and nuisance columns through its noise's whitening filter.
 #[derive(Debug, Clone)]
 struct Whitened {
-    /// `[1, a1, …, ap]`: `e[i] = Σ_j a_j·x[i−j]` is white ([`ar_filter`]).
+    /// `[1, a1, …, ap]`: `e[i] = Σ_j a_j·x[i−j]` is white ([`whiten`]).
     filter: Vec<f64>,
     target: Vec<f64>,
     nuisance: DMatrix<f64>,
@@ -125,7 +126,7 @@ impl Regression {
         let filtered: Vec<Vec<f64>>;
         let (paths, nuisance, target): (Vec<&[f64]>, &DMatrix<f64>, &[f64]) = match &self.whitened {
             Some(w) => {
-                filtered = paths.iter().map(|p| ar_filter(&w.filter, p)).collect();
+                filtered = paths.iter().map(|p| whiten(&w.filter, p)).collect();
                 (
                     filtered.iter().map(|v| &v[..]).collect(),
                     &w.nuisance,
@@ -225,10 +226,10 @@ impl Regression {
         let mut nuisance = DMatrix::zeros(self.nuisance.nrows(), self.nuisance.ncols());
         for (j, column) in self.nuisance.column_iter().enumerate() {
             let column: Vec<f64> = column.iter().copied().collect();
-            nuisance.set_column(j, &DVector::from_vec(ar_filter(&filter, &column)));
+            nuisance.set_column(j, &DVector::from_vec(whiten(&filter, &column)));
         }
         self.whitened = Some(Whitened {
-            target: ar_filter(&filter, &self.target),
+            target: whiten(&filter, &self.target),
             nuisance,
             filter,
         });
@@ -246,7 +247,12 @@ impl Regression {
                 i += 1;
             }
             if i - start >= 8 * max {
-                runs.push(detrended(&r[start..i]));
+                let run = &r[start..i];
+                let line = [
+                    vec![1.0; run.len()],
+                    (0..run.len()).map(|k| k as f64).collect(),
+                ];
+                runs.push(detrend(run, &line));
             }
             i += 1;
         }
@@ -263,15 +269,7 @@ impl Regression {
                 sum / samples as f64
             })
             .collect();
-        if autocovariance[0].is_nan() || autocovariance[0] <= 0.0 {
-            return None;
-        }
-        let aic = |f: &(Vec<f64>, f64)| samples as f64 * f.1.ln() + 2.0 * (f.0.len() - 1) as f64;
-        super::noise::levinson(&autocovariance, max)
-            .into_iter()
-            .filter(|f| f.1 > 0.0)
-            .min_by(|a, b| aic(a).total_cmp(&aic(b)))
-            .map(|f| f.0)
+        ar_by_aic(&autocovariance, samples).map(|(filter, _)| filter)
     }
 
     /// χ² (train, held-out) of the fit with `paths`, in units of the noise scale `sigma`
@@ -492,38 +490,6 @@ impl ReferenceWitness {
         }
         self.fit.chi2(&[&path.0, &indicator(&path.1)], self.sigma_v)
     }
-}
-
-/// `e[i] = Σ_j a_j·x[i−j]` for the filter `a = [1, a1, …, ap]`, the first samples on what
-/// history there is.
-fn ar_filter(a: &[f64], x: &[f64]) -> Vec<f64> {
-    (0..x.len())
-        .map(|i| {
-            a.iter()
-                .take(i + 1)
-                .enumerate()
-                .map(|(j, c)| c * x[i - j])
-                .sum()
-        })
-        .collect()
-}
-
-/// `x` less its least-squares straight line.
-fn detrended(x: &[f64]) -> Vec<f64> {
-    let n = x.len() as f64;
-    let mid = (n - 1.0) / 2.0;
-    let mean = x.iter().sum::<f64>() / n;
-    let (mut tt, mut tx) = (0.0, 0.0);
-    for (i, v) in x.iter().enumerate() {
-        let t = i as f64 - mid;
-        tt += t * t;
-        tx += t * (v - mean);
-    }
-    let slope = if tt > 0.0 { tx / tt } else { 0.0 };
-    x.iter()
-        .enumerate()
-        .map(|(i, v)| v - mean - slope * (i as f64 - mid))
-        .collect()
 }
 
 fn finite(x: &[f64]) -> bool {
