@@ -837,8 +837,9 @@ pub fn diagnose_with(
         )
     };
     // The nominal fit chosen is then refitted from where it stopped with the actuator's
-    // damping at either end of its range: below a quarter sample's lag the damping is held
-    // where it starts (`model::frees_parameter`), and at its start (Q 0.8) a stage with a
+    // damping at either end of its range: below a quarter sample's lag, or at a bound of its
+    // range, the damping is held where it starts (`model::frees_parameter`; a fit that
+    // stopped at a bound is refitted at both, held), and at its start (Q 0.8) a stage with a
     // first-order lag (Q → 0) or a lightly damped mode could only be fitted with the wrong
     // lag, leaving a misfit at the fast lines that a resonance candidate then took up (an
     // independent simulator's closed-loop stage, a first-order lag at 3–6 kHz sampled at
@@ -3759,6 +3760,48 @@ mod tests {
         assert!((param("q").value / q - 1.0).abs() < 0.3, "{top:?}");
         assert!((param("peak_gain").value - gain).abs() < 0.02, "{top:?}");
         assert!(d.after.held_out_chi2_per_sample < 1.1, "{:?}", d.after);
+    }
+
+    /// A frame mode (202.5 Hz, Q 13, twice the motion at its peak) behind a stage slower
+    /// than the nominal actuator can be: lag 325 µs (1.3 samples), damped to Q 0.09, under
+    /// [`model::ACTUATOR_Q`]'s bound of 0.1. The nominal fit puts its damping at that bound,
+    /// where the map is flat, and the resonance's refit holds it there
+    /// (`model::DAMPING_AT_BOUND_SIN`). Freed, the damping's step stopped the refit at the
+    /// peaking grid's point (204.7 Hz, Q 20.0, peak gain 2.00) and held-out χ² stayed at 1.25
+    /// per sample; held, the mode comes out at 201.8 Hz, Q 10.9, gain 1.89, χ² 1.05.
+    ///
+    /// A drag is named second in both: the twin's frame mode takes its input held over each
+    /// sample, the candidate's is continuous, and the drag's lead takes up the difference.
+    #[test]
+    fn a_frame_mode_behind_a_stage_at_the_damping_bound_is_fitted() {
+        use crate::twin::{actuator::ResonantMode, dynamics::InputHold};
+        let (f, q, gain) = (202.5, 13.0, 2.0);
+        let (stage_lag_s, stage_q) = (325e-6, 0.09);
+        let mut twin = nominal_twin(5);
+        twin.actuator.modes = vec![
+            ResonantMode {
+                input: InputHold::Ramped,
+                ..ResonantMode::held(
+                    1.0 / (2.0 * std::f64::consts::PI * stage_lag_s * stage_q),
+                    stage_q,
+                )
+            },
+            ResonantMode::peaking(f, q, gain),
+        ];
+        let d = diagnosed(&twin, FS_HZ);
+        let (q_low, _) = super::model::ACTUATOR_Q;
+        let nominal_q = d.before.actuator.q.unwrap();
+        assert!(nominal_q - q_low < 1e-5, "{:?}", d.before.actuator);
+        let top = &d.effects[0];
+        assert!(
+            top.significant && top.id == "instrument_resonance",
+            "{top:?}"
+        );
+        let value = |name: &str| top.params.iter().find(|p| p.name == name).unwrap().value;
+        assert!((value("freq_hz") / f - 1.0).abs() < 0.01, "{top:?}");
+        assert!((value("q") / q - 1.0).abs() < 0.25, "{top:?}");
+        assert!((value("peak_gain") / gain - 1.0).abs() < 0.1, "{top:?}");
+        assert!(d.after.held_out_chi2_per_sample < 1.15, "{:?}", d.after);
     }
 
     /// The detector that reads the sample reads the hard reference too, over the wider range
