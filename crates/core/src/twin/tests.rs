@@ -491,3 +491,57 @@ fn a_film_stiffens_the_contact_by_its_contact_radius() {
         );
     }
 }
+
+/// A film's factor multiplies the contact's geometric function inside the hereditary
+/// integral, as the elastic solution's does at each contact radius (Ting's extension of
+/// Lee–Radok to a growing contact): pressed into a creeping film and held, at every sample
+/// film(h)·h^{3/2} is the Prony material's response to the whole load history
+/// `u = 9/(16√R)·K·d` — not h^{3/2} its response to `u/film`, the form this twin had before
+/// (2026-11-28), which an independent simulator's films told apart from a sharper tip.
+#[test]
+fn a_creeping_film_stiffens_inside_the_hereditary_integral() {
+    let (radius_m, thickness_nm, fs_hz) = (20e-9f64, 60.0, 8000.0);
+    let material = PronySeries::new(
+        1e-6,
+        vec![PronyTerm {
+            j_per_pa: 1e-6,
+            tau_s: 5e-3,
+        }],
+    );
+    let mut cfg = base_config();
+    cfg.sample.material = material.clone();
+    cfg.sample.thickness_nm = Some(thickness_nm);
+    let mut twin = Twin::new(&cfg, fs_hz);
+    let film = |h: f64| {
+        let chi = (radius_m * h).sqrt() / (thickness_nm * 1e-9);
+        1.0 + 1.133 * chi + 1.283 * chi.powi(2) + 0.769 * chi.powi(3) + 0.0975 * chi.powi(4)
+    };
+    let cf = 9.0 / (16.0 * radius_m.sqrt());
+    let (mut inside, mut outside) = (
+        MaterialState::new(&material, fs_hz),
+        MaterialState::new(&material, fs_hz),
+    );
+    let (mut worst_inside, mut worst_outside) = (0.0f64, 0.0f64);
+    let mut films = vec![];
+    for k in 0..400 {
+        let t = twin.step(if k == 0 { 0.0 } else { 1.5 }).truth;
+        let (h, u) = (t.indentation_m, cf * t.force_n);
+        let c = if h > 0.0 { film(h) } else { 1.0 };
+        let y = h.powf(1.5);
+        let filmed = inside.commit(u);
+        let divided = outside.commit(u / c);
+        if k > 0 {
+            assert!(t.in_contact, "sample {k}");
+            worst_inside = worst_inside.max((c * y - filmed).abs() / (c * y));
+            worst_outside = worst_outside.max((y - divided).abs() / y);
+            films.push(c);
+        }
+    }
+    // The film shows, and creeps: its factor grows as the tip sinks in over the hold.
+    let (first, last) = (films[0], films[films.len() - 1]);
+    assert!(first > 1.1 && last > first * 1.02, "film {first} → {last}");
+    assert!(worst_inside < 1e-6, "inside {worst_inside:e}");
+    // What the other form would leave (8.6 %): far above the solve's precision (2·10⁻⁷,
+    // from the solve's slope, which leaves out the film factor's own change with depth).
+    assert!(worst_outside > 1e-3, "outside {worst_outside:e}");
+}
