@@ -202,7 +202,9 @@ pub fn solve_lazy(
             // 1317 s against 927 s (near-floor modes and drags five times longer), two seed-1
             // pairs left the floor (adhesion + blunt tip at 8.8 χ² per sample; the test asks
             // 48 of 53 at the floor and got 47), and a 1/f null of the fresh proxy set had a
-            // creep named (held-out drop 44.3 against the 43.9 it must beat).
+            // creep named (held-out drop 44.3 against the 43.9 it must beat). The diagnosis
+            // holds the damping where a fit starts at its bound instead
+            // (`diagnose::model::frees_parameter`, 1b59036), so the solver never sees it.
             let big = step.amax();
             if big > opts.max_step {
                 step *= opts.max_step / big;
