@@ -57,6 +57,27 @@ pub enum TipGeometry {
     /// flat (n > 2) is stiffer at shallow depth than its sphere, a sharpened one (n < 1)
     /// softer than its cone.
     PowerLaw { exponent: f64, coefficient_si: f64 },
+    /// A sphere of radius R (metres) worn flat at its apex: a flat of radius `b`
+    /// (`flat_radius_m`), the paraboloid beyond it. Serialized with `shape = "flatsphere"`.
+    /// By the method of dimensionality reduction (Popov & Heß), for a contact radius a ≥ b
+    ///
+    /// ```text
+    /// h(a) = a·√(a²−b²)/R        P(a) = 2E*·√(a²−b²)·(2a² + b²)/(3R)
+    /// ```
+    ///
+    /// a flat punch (`P = 2E*·b·h`) at shallow depth, the sphere (`b = 0`: Hertz) deep below
+    /// it, and `dP/dh = 2E*·a` throughout. Both invert in closed form (a quadratic in a² and
+    /// a depressed cubic in √(a²−b²)), so no solve is needed.
+    FlatSphere { radius_m: f64, flat_radius_m: f64 },
+}
+
+/// `(a, √(a²−b²))` of a flat-worn sphere ([`TipGeometry::FlatSphere`]) at indentation h > 0:
+/// `a² − b² = 2R²h²/(√(b⁴ + 4R²h²) + b²)`, written so that a shallow contact on a wide flat
+/// does not cancel.
+fn flat_sphere_radii(radius_m: f64, flat_m: f64, h_m: f64) -> (f64, f64) {
+    let (b2, rh) = (flat_m * flat_m, radius_m * h_m);
+    let s = 2.0 * rh * rh / ((b2 * b2 + 4.0 * rh * rh).sqrt() + b2);
+    ((s + b2).sqrt(), s.sqrt())
 }
 
 impl TipGeometry {
@@ -107,9 +128,9 @@ impl Contact {
     pub fn force_factor(&self) -> f64 {
         let nu = 1.0 - self.poisson_ratio * self.poisson_ratio;
         match self.tip {
-            TipGeometry::Sphere { radius_m } | TipGeometry::BluntedCone { radius_m, .. } => {
-                3.0 * nu / (4.0 * radius_m.sqrt())
-            }
+            TipGeometry::Sphere { radius_m }
+            | TipGeometry::BluntedCone { radius_m, .. }
+            | TipGeometry::FlatSphere { radius_m, .. } => 3.0 * nu / (4.0 * radius_m.sqrt()),
             TipGeometry::Cone { half_angle_rad } => {
                 std::f64::consts::PI * nu / (2.0 * half_angle_rad.tan())
             }
@@ -132,7 +153,9 @@ impl Contact {
     /// exponent `h·Φ'(h)/Φ(h)`.
     pub fn indentation_exponent(&self) -> f64 {
         match self.tip {
-            TipGeometry::Sphere { .. } | TipGeometry::BluntedCone { .. } => 1.5,
+            TipGeometry::Sphere { .. }
+            | TipGeometry::BluntedCone { .. }
+            | TipGeometry::FlatSphere { .. } => 1.5,
             TipGeometry::Cone { .. } => 2.0,
             TipGeometry::PowerLaw { exponent, .. } => 1.0 + 1.0 / exponent,
         }
@@ -158,9 +181,9 @@ impl Contact {
         match self.tip {
             TipGeometry::Sphere { .. } => hertz_y_and_slope(h_m).0,
             TipGeometry::Cone { .. } => h_m * h_m,
-            TipGeometry::BluntedCone { .. } | TipGeometry::PowerLaw { .. } => {
-                self.y_and_slope(h_m).0
-            }
+            TipGeometry::BluntedCone { .. }
+            | TipGeometry::PowerLaw { .. }
+            | TipGeometry::FlatSphere { .. } => self.y_and_slope(h_m).0,
         }
     }
 
@@ -174,9 +197,9 @@ impl Contact {
         match self.tip {
             TipGeometry::Sphere { .. } => 1.5 * h_m.sqrt(),
             TipGeometry::Cone { .. } => 2.0 * h_m,
-            TipGeometry::BluntedCone { .. } | TipGeometry::PowerLaw { .. } => {
-                self.y_and_slope(h_m).1
-            }
+            TipGeometry::BluntedCone { .. }
+            | TipGeometry::PowerLaw { .. }
+            | TipGeometry::FlatSphere { .. } => self.y_and_slope(h_m).1,
         }
     }
 
@@ -201,6 +224,23 @@ impl Contact {
                     let m = 1.0 + 1.0 / exponent;
                     let y = h_m.powf(m);
                     (y, m * y / h_m)
+                }
+            }
+            TipGeometry::FlatSphere {
+                radius_m,
+                flat_radius_m,
+            } => {
+                if h_m <= 0.0 {
+                    (0.0, 0.0)
+                } else {
+                    // y = 3/(4√R)·P/E*, from the contact radius in closed form.
+                    let (a, q) = flat_sphere_radii(radius_m, flat_radius_m, h_m);
+                    let b2 = flat_radius_m * flat_radius_m;
+                    let root_r = radius_m.sqrt();
+                    (
+                        q * (2.0 * q * q + 3.0 * b2) / (2.0 * radius_m * root_r),
+                        1.5 * a / root_r,
+                    )
                 }
             }
             _ => (self.y_from_indentation(h_m), self.shape_slope(h_m)),
@@ -229,6 +269,21 @@ impl Contact {
                 }
             }
             TipGeometry::PowerLaw { exponent, .. } => y.powf(exponent / (exponent + 1.0)),
+            TipGeometry::FlatSphere {
+                radius_m,
+                flat_radius_m,
+            } => {
+                // q = √(a² − b²) solves q³ + p·q = r, p = 1.5b², r = R^{3/2}·y (Cardano's one
+                // real root), as q = r/(w² + p/3 + v²) with w = ∛(r/2 + √D), v = p/(3w):
+                // w − v itself cancels on a wide flat.
+                let p = 1.5 * flat_radius_m * flat_radius_m;
+                let r = radius_m * radius_m.sqrt() * y;
+                let d = 0.25 * r * r + p * p * p / 27.0;
+                let w = (0.5 * r + d.sqrt()).cbrt();
+                let v = p / (3.0 * w);
+                let q = r / (w * w + p / 3.0 + v * v);
+                (q * q + flat_radius_m * flat_radius_m).sqrt() * q / radius_m
+            }
         }
     }
 
@@ -261,6 +316,10 @@ impl Contact {
                 coefficient_si,
             } => (h_m / (TipGeometry::power_law_depth_factor(exponent) * coefficient_si))
                 .powf(1.0 / exponent),
+            TipGeometry::FlatSphere {
+                radius_m,
+                flat_radius_m,
+            } => flat_sphere_radii(radius_m, flat_radius_m, h_m).0,
         }
     }
 
@@ -727,6 +786,52 @@ mod tests {
         // The paper's factor 9/(16√R) at ν = 0.5.
         let paper = Contact::sphere(r);
         assert!((paper.force_factor() - 9.0 / (16.0 * r.sqrt())).abs() < 1e-9);
+    }
+
+    /// A sphere worn flat: a flat punch at shallow depth (`P = 2E*·b·h`), Hertz once the flat
+    /// is small against the contact radius, `dy/dh = 3a/(2√R)` throughout, and its closed-form
+    /// inverse exact from a sliver of the flat's depth to far past it.
+    #[test]
+    fn a_flat_worn_sphere_is_a_punch_then_a_sphere() {
+        let (r, b, e) = (600e-9f64, 120e-9f64, 1.0e6);
+        let e_star = e / 0.75;
+        let tip = |flat_radius_m: f64| Contact {
+            tip: TipGeometry::FlatSphere {
+                radius_m: r,
+                flat_radius_m,
+            },
+            poisson_ratio: 0.5,
+        };
+        let worn = tip(b);
+        // P = y/(J·c) for a material of compliance J = 1/E.
+        let force = |c: &Contact, h: f64| c.force_from_u(c.y_from_indentation(h) * e);
+        // The punch: to second order in R·h/b² (4·10⁻³ at 0.1 nm).
+        let h = 0.1e-9;
+        let punch = 2.0 * e_star * b * h;
+        assert!(
+            (force(&worn, h) / punch - 1.0).abs() < 1e-4,
+            "{}",
+            force(&worn, h) / punch
+        );
+        assert!((worn.contact_radius(h) / b - 1.0).abs() < 1e-4);
+        // Hertz, for a flat of a hundredth of a nanometre under a 77 nm contact.
+        let (sphere, h) = (Contact::sphere(r), 10e-9);
+        let nearly = tip(0.01e-9);
+        assert!((force(&nearly, h) / force(&sphere, h) - 1.0).abs() < 1e-6);
+        for h in [1e-13, 1e-11, 1e-9, 24e-9, 1e-7, 1e-6] {
+            let (y, slope) = worn.y_and_slope(h);
+            let back = worn.indentation_from_y(y);
+            assert!((back / h - 1.0).abs() < 1e-10, "h {h}: back {back}");
+            let a = worn.contact_radius(h);
+            assert!((slope / (1.5 * a / r.sqrt()) - 1.0).abs() < 1e-12);
+            let dh = 1e-6 * h;
+            let numeric =
+                (worn.y_from_indentation(h + dh) - worn.y_from_indentation(h - dh)) / (2.0 * dh);
+            assert!(
+                (numeric / slope - 1.0).abs() < 1e-6,
+                "h {h}: {numeric} vs {slope}"
+            );
+        }
     }
 
     /// Sneddon: P = (2/π)·E/(1−ν²)·tan α·h².

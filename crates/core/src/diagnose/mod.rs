@@ -2719,19 +2719,25 @@ impl StartContext {
                     t[..plain.n_nominal()].copy_from_slice(&self.nominal_theta);
                     t.push(other.ln());
                 }
-                Effect::TipGeometry if spec.tip == TipForm::Blunted => {
+                Effect::TipGeometry if matches!(spec.tip, TipForm::Blunted | TipForm::Flat) => {
                     // From the nominal fit, its compliances rescaled to the same force at the
-                    // deepest indentation, blunted at a third of that depth.
-                    let depth = 0.3 * self.max_indentation_nm;
+                    // deepest indentation: blunted at a third of that depth, or worn flat
+                    // over a third of the contact radius there.
+                    let start = match spec.tip {
+                        TipForm::Blunted => 0.3 * self.max_indentation_nm,
+                        _ => {
+                            0.3 * (problem.worn_sphere_radius_nm() * self.max_indentation_nm).sqrt()
+                        }
+                    };
                     let tip_alone = ModelSpec {
-                        tip: TipForm::Blunted,
+                        tip: spec.tip,
                         ..ModelSpec::nominal(spec.terms).with(&[Effect::TipGeometry])
                     };
                     let mut at = self.nominal_theta.clone();
-                    at.push(depth.ln());
+                    at.push(start.ln());
                     let rescaled = self.same_force(problem, &self.nominal_theta, &tip_alone, &at);
                     t[..plain.n_nominal()].copy_from_slice(&rescaled);
-                    t.push(depth.ln());
+                    t.push(start.ln());
                 }
                 _ => {}
             }
@@ -4122,22 +4128,52 @@ mod tests {
         assert!(d.against_floor.after_at_floor, "{:?}", d.against_floor);
     }
 
+    /// The corpus protocol's diagnosis of twin 17 with its declared sphere (of radius R nm)
+    /// replaced by `tip(R)`.
+    fn diagnosed_with_tip(tip: impl FnOnce(f64) -> crate::twin::TipConfig) -> Diagnosis {
+        let mut twin = nominal_twin(17);
+        let crate::twin::TipConfig::Sphere { radius_nm } = twin.tip else {
+            panic!("the corpus twin has a sphere")
+        };
+        twin.tip = tip(radius_nm);
+        diagnosed(&twin, 5000.0)
+    }
+
+    /// A sphere worn flat at its apex — a flat of 150 nm radius on the corpus twin's 1 µm
+    /// sphere, declared as that sphere — is named tip_geometry in its worn form, with the
+    /// flat's radius recovered: a punch at shallow depth, which no power law or blunted cone
+    /// follows into the sphere below it. (An independent simulator's such tip, 121 nm on a
+    /// 644 nm sphere, was named a detector nonlinearity, 539 held-out units against the
+    /// power law's 342; in its worn form 683, its flat at 120.7 nm.)
+    #[test]
+    fn a_sphere_worn_flat_is_named_with_its_flat() {
+        let flat_radius_nm = 150.0;
+        let d = diagnosed_with_tip(|radius_nm| crate::twin::TipConfig::FlatSphere {
+            radius_nm,
+            flat_radius_nm,
+        });
+        let top = &d.effects[0];
+        assert!(top.significant && top.id == "tip_geometry", "{top:?}");
+        let flat = top
+            .params
+            .iter()
+            .find(|p| p.name == "flat_radius_nm")
+            .unwrap_or_else(|| panic!("not the worn form: {:?}", top.params));
+        assert!((flat.value / flat_radius_nm - 1.0).abs() < 0.1, "{flat:?}");
+        assert!(d.against_floor.after_at_floor, "{:?}", d.against_floor);
+    }
+
     /// A sphere worn flat — the profile z = B·r³, declared as the sphere of the same height
     /// at a contact radius of 100 nm — is named tip_geometry in its power-law form, with its
     /// profile exponent recovered (no pure shape, and no blunted one, bends the load law
     /// below the sphere's h^{3/2}).
     #[test]
     fn a_worn_flat_tip_is_named_with_its_exponent() {
-        let mut twin = nominal_twin(17);
-        let crate::twin::TipConfig::Sphere { radius_nm } = twin.tip else {
-            panic!("the corpus twin has a sphere")
-        };
         let n = 3.0;
-        twin.tip = crate::twin::TipConfig::PowerLaw {
+        let d = diagnosed_with_tip(|radius_nm| crate::twin::TipConfig::PowerLaw {
             profile_exponent: n,
             profile_coefficient: 100f64.powf(2.0 - n) / (2.0 * radius_nm),
-        };
-        let d = diagnosed(&twin, 5000.0);
+        });
         assert_eq!(d.verdict, Verdict::Mismatch, "{:?}", d.effects);
         assert_eq!(d.effects[0].id, "tip_geometry");
         assert!(d.effects[0].significant);

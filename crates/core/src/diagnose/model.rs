@@ -255,6 +255,10 @@ pub enum TipForm {
     /// [`Problem::tip_reference_depth_nm`], so the compliances keep their meaning as it
     /// moves and the declared exponent is the declared tip.
     PowerLaw,
+    /// The declared sphere worn flat at its apex ([`TipConfig::FlatSphere`]): a punch at
+    /// shallow depth, the sphere deep below it. One parameter, the flat's radius. A declared
+    /// cone is worn as the 1 µm sphere the plain form swaps it for.
+    Flat,
 }
 
 impl TipForm {
@@ -265,7 +269,9 @@ impl TipForm {
             TipConfig::PowerLaw {
                 profile_exponent, ..
             } => profile_exponent,
-            TipConfig::Sphere { .. } | TipConfig::BluntedCone { .. } => 2.0,
+            TipConfig::Sphere { .. }
+            | TipConfig::BluntedCone { .. }
+            | TipConfig::FlatSphere { .. } => 2.0,
         }
     }
 }
@@ -275,6 +281,9 @@ const BLUNTED_TIP_NAMES: &[(&str, &str)] = &[("transition_depth_nm", "nm")];
 
 /// The parameter of a power-law tip (fitted as its logarithm).
 const POWER_LAW_TIP_NAMES: &[(&str, &str)] = &[("profile_exponent", "1")];
+
+/// The parameter of a sphere worn flat (fitted as its logarithm).
+const FLAT_TIP_NAMES: &[(&str, &str)] = &[("flat_radius_nm", "nm")];
 
 /// The effects of the instrument's chain from drive to detector, which a hard reference
 /// sample driven alike reads as well (`witness::ReferenceWitness`): everything else in the
@@ -728,9 +737,11 @@ impl ModelSpec {
             fork(&mut out, &reaching, |s, f| s.adhesion = f);
         }
         if first.has(Effect::TipGeometry) && first.tip == TipForm::Swap {
-            fork(&mut out, &[TipForm::Blunted, TipForm::PowerLaw], |s, f| {
-                s.tip = f
-            });
+            fork(
+                &mut out,
+                &[TipForm::Blunted, TipForm::PowerLaw, TipForm::Flat],
+                |s, f| s.tip = f,
+            );
         }
         if first.has(Effect::DetectorNonlinearity) && first.nonlinearity == NonlinearityForm::Both {
             let single = [NonlinearityForm::Quadratic, NonlinearityForm::Cubic];
@@ -781,6 +792,8 @@ impl ModelSpec {
             BLUNTED_TIP_NAMES
         } else if e == Effect::TipGeometry && self.tip == TipForm::PowerLaw {
             POWER_LAW_TIP_NAMES
+        } else if e == Effect::TipGeometry && self.tip == TipForm::Flat {
+            FLAT_TIP_NAMES
         } else if e == Effect::InstrumentResonance && self.resonance == ResonanceForm::Peaking {
             PEAKING_RESONANCE_NAMES
         } else {
@@ -1071,6 +1084,15 @@ impl Problem {
         }
     }
 
+    /// The sphere a worn tip ([`TipForm::Flat`]) is worn from: the declared one, or for a
+    /// declared cone the sphere the plain form swaps it for.
+    pub(crate) fn worn_sphere_radius_nm(&self) -> f64 {
+        match self.declared_tip.declared_as() {
+            crate::recording::Tip::Sphere { radius_nm } => radius_nm,
+            crate::recording::Tip::Cone { .. } => SWAP_SPHERE_RADIUS_NM,
+        }
+    }
+
     pub fn contact_point_nm(&self, th: &[f64]) -> f64 {
         th[1] * ZC_SCALE_NM
     }
@@ -1127,6 +1149,11 @@ impl Problem {
         } else if spec.has(Effect::TipGeometry) && spec.tip == TipForm::PowerLaw {
             let n = p(Effect::TipGeometry, 0).map_or(1.0, f64::exp);
             self.power_law_tip(n)
+        } else if spec.has(Effect::TipGeometry) && spec.tip == TipForm::Flat {
+            TipConfig::FlatSphere {
+                radius_nm: self.worn_sphere_radius_nm(),
+                flat_radius_nm: p(Effect::TipGeometry, 0).map_or(1.0, f64::exp),
+            }
         } else if spec.has(Effect::TipGeometry) {
             match self.declared_tip {
                 TipConfig::Sphere { .. } => TipConfig::Cone {
@@ -1134,7 +1161,8 @@ impl Problem {
                 },
                 TipConfig::Cone { .. }
                 | TipConfig::BluntedCone { .. }
-                | TipConfig::PowerLaw { .. } => TipConfig::Sphere {
+                | TipConfig::PowerLaw { .. }
+                | TipConfig::FlatSphere { .. } => TipConfig::Sphere {
                     radius_nm: SWAP_SPHERE_RADIUS_NM,
                 },
             }
@@ -1722,8 +1750,8 @@ fn blunted(declared: TipConfig, depth_nm: f64) -> TipConfig {
                 half_angle_deg,
             }
         }
-        // A declared profile is blunted as the pure shape it is declared as.
-        TipConfig::PowerLaw { .. } => match declared.declared_as() {
+        // A declared profile or worn sphere is blunted as the pure shape it is declared as.
+        TipConfig::PowerLaw { .. } | TipConfig::FlatSphere { .. } => match declared.declared_as() {
             crate::recording::Tip::Sphere { radius_nm } => {
                 blunted(TipConfig::Sphere { radius_nm }, depth_nm)
             }
@@ -1945,11 +1973,26 @@ mod tests {
         assert!(!mains[0].mains_harmonics && mains[1].mains_harmonics);
         let tip = forms(&[Effect::TipGeometry]);
         let kinds: Vec<TipForm> = tip.iter().map(|s| s.tip).collect();
-        assert_eq!(kinds, [TipForm::Swap, TipForm::Blunted, TipForm::PowerLaw]);
+        assert_eq!(
+            kinds,
+            [
+                TipForm::Swap,
+                TipForm::Blunted,
+                TipForm::PowerLaw,
+                TipForm::Flat
+            ]
+        );
         let counts: Vec<usize> = tip.iter().map(|s| s.n_nonlinear()).collect();
-        assert_eq!([counts[1] - counts[0], counts[2] - counts[0]], [1, 1]);
+        assert_eq!(
+            [
+                counts[1] - counts[0],
+                counts[2] - counts[0],
+                counts[3] - counts[0]
+            ],
+            [1, 1, 1]
+        );
         let both = forms(&[Effect::Adhesion, Effect::TipGeometry]);
-        assert_eq!(both.len(), 9);
+        assert_eq!(both.len(), 12);
         assert!(both
             .iter()
             .any(|s| s.adhesion == AdhesionForm::Neck && s.tip == TipForm::Blunted));

@@ -105,6 +105,14 @@ pub enum TipConfig {
         profile_exponent: f64,
         profile_coefficient: f64,
     },
+    /// A sphere of `radius_nm` worn flat at its apex, the flat `flat_radius_nm` across
+    /// ([`TipGeometry::FlatSphere`]): a punch at shallow depth, the sphere deep below it.
+    /// (`shape = "flatsphere"`.)
+    #[serde(rename = "flatsphere")]
+    FlatSphere {
+        radius_nm: f64,
+        flat_radius_nm: f64,
+    },
 }
 
 impl TipConfig {
@@ -132,6 +140,13 @@ impl TipConfig {
                 // z_m = B_si·r_m^n with z_m = 1e-9·z_nm and r_m = 1e-9·r_nm.
                 coefficient_si: b * 1e-9f64.powf(1.0 - n),
             },
+            TipConfig::FlatSphere {
+                radius_nm,
+                flat_radius_nm,
+            } => TipGeometry::FlatSphere {
+                radius_m: radius_nm * 1e-9,
+                flat_radius_m: flat_radius_nm * 1e-9,
+            },
         }
     }
 
@@ -144,9 +159,9 @@ impl TipConfig {
         use crate::recording::Tip;
         const R0_NM: f64 = 100.0;
         match *self {
-            TipConfig::Sphere { radius_nm } | TipConfig::BluntedCone { radius_nm, .. } => {
-                Tip::Sphere { radius_nm }
-            }
+            TipConfig::Sphere { radius_nm }
+            | TipConfig::BluntedCone { radius_nm, .. }
+            | TipConfig::FlatSphere { radius_nm, .. } => Tip::Sphere { radius_nm },
             TipConfig::Cone { half_angle_deg } => Tip::Cone { half_angle_deg },
             TipConfig::PowerLaw {
                 profile_exponent: n,
@@ -321,6 +336,13 @@ impl TwinConfig {
             } => {
                 positive(p("tip.profile_coefficient"), profile_coefficient);
                 (None, None)
+            }
+            TipConfig::FlatSphere {
+                radius_nm,
+                flat_radius_nm,
+            } => {
+                positive(p("tip.flat_radius_nm"), flat_radius_nm);
+                (Some(radius_nm), None)
             }
         };
         if let Some(r) = radius {
