@@ -441,6 +441,35 @@ fn power_law_tip_config() {
     );
 }
 
+/// `[tip] shape = "flatsphere"` reads from TOML, is declared as its sphere, and a flat that is
+/// not positive is named by its key.
+#[test]
+fn flat_sphere_tip_config() {
+    let tip: TipConfig =
+        toml::from_str("shape = \"flatsphere\"\nradius_nm = 640.0\nflat_radius_nm = 120.0")
+            .unwrap();
+    assert_eq!(
+        tip,
+        TipConfig::FlatSphere {
+            radius_nm: 640.0,
+            flat_radius_nm: 120.0
+        }
+    );
+    assert_eq!(
+        tip.declared_as(),
+        crate::recording::Tip::Sphere { radius_nm: 640.0 }
+    );
+    let mut bad = base_config();
+    bad.tip = TipConfig::FlatSphere {
+        radius_nm: -1.0,
+        flat_radius_nm: 0.0,
+    };
+    let paths: Vec<String> = bad.validate("twin").into_iter().map(|i| i.path).collect();
+    for key in ["twin.tip.radius_nm", "twin.tip.flat_radius_nm"] {
+        assert!(paths.contains(&key.to_string()), "{key}: {paths:?}");
+    }
+}
+
 /// A film on a rigid substrate stiffens the contact by Dimitriadis's factor in χ = a/t, the
 /// contact radius over the thickness: at rest, K·d is the free contact's load at the same
 /// indentation times that factor, for a sphere (a = √(Rh)) and a cone (a = 2h·tan α/π).
