@@ -92,7 +92,7 @@ impl Effect {
                 "tip–sample adhesion (DMT): a pull-off on retract, an adhesive neck that holds the tip past it, or a pull reaching out that snaps it in"
             }
             Effect::TipGeometry => {
-                "a tip shape other than the one declared: the other pure shape, a blunted (sphere-capped) cone, or a power-law profile (a worn or sharpened tip)"
+                "a tip shape other than the one declared: the other pure shape, a blunted (sphere-capped) cone, a power-law profile (a worn or sharpened tip), or the declared sphere worn flat at its apex"
             }
             Effect::HydrodynamicDrag => "viscous drag on the lever, proportional to its velocity",
             Effect::ChannelDelay => "a delay of the deflection channel behind the drive",
