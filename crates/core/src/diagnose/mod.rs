@@ -4166,7 +4166,8 @@ mod tests {
     /// A sphere worn flat — the profile z = B·r³, declared as the sphere of the same height
     /// at a contact radius of 100 nm — is named tip_geometry in its power-law form, with its
     /// profile exponent recovered (no pure shape, and no blunted one, bends the load law
-    /// below the sphere's h^{3/2}).
+    /// below the sphere's h^{3/2}; the sphere worn flat does, but a smooth r³ profile has no
+    /// punch at its apex).
     #[test]
     fn a_worn_flat_tip_is_named_with_its_exponent() {
         let n = 3.0;
