@@ -148,7 +148,8 @@ impl Contact {
     /// for a power-law profile.
     ///
     /// The blunted cone has no single exponent: this returns 3/2, the law of its spherical
-    /// cap (exact below the transition depth `b²/R`, about 2 far above it). Callers that need
+    /// cap (exact below the transition depth `b²/R`, about 2 far above it). Nor has the sphere
+    /// worn flat: 3/2 is its law deep below the flat, 1 (a punch's) on it. Callers that need
     /// the local law should use [`Contact::shape_slope`] (`dy/dh`) instead, e.g. the local
     /// exponent `h·Φ'(h)/Φ(h)`.
     pub fn indentation_exponent(&self) -> f64 {
