@@ -641,10 +641,14 @@ pub(crate) fn frees_parameter(i: usize, lag: usize, start: &[f64], hold_dynamics
     if hold_dynamics {
         i != lag && i != lag + 1
     } else {
-        i != lag + 1
-            || (start[lag] >= DAMPING_SHOWS_FROM_LAG
-                && start[lag + 1].sin().abs() >= DAMPING_AT_BOUND_SIN)
+        i != lag + 1 || (start[lag] >= DAMPING_SHOWS_FROM_LAG && !damping_at_bound(start, lag))
     }
+}
+
+/// Whether `theta` puts the nominal actuator's damping (after its lag, at `lag`) at a bound
+/// of [`ACTUATOR_Q`] ([`DAMPING_AT_BOUND_SIN`]), where a fit freeing it stalls.
+pub(crate) fn damping_at_bound(theta: &[f64], lag: usize) -> bool {
+    theta[lag + 1].sin().abs() < DAMPING_AT_BOUND_SIN
 }
 
 /// The nominal actuator lag's start, in samples: small, but off zero, where the χ² is flat
