@@ -511,6 +511,10 @@ fn real_jpk_diagnose_json_keeps_the_documented_keys() {
         let gap = finite(l, "gap");
         assert!((0.0..6.0).contains(&gap), "{l}");
     }
+    // The base is the stage's own height sensor: a delay after the stage would show, and
+    // nothing is out of sight.
+    let blind = v["blind_spots"].as_array().expect("blind_spots[]");
+    assert!(blind.is_empty(), "{blind:?}");
     for e in effects {
         finite(e, "evidence");
         let refused = e

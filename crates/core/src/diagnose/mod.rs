@@ -302,6 +302,56 @@ pub struct Diagnosis {
     /// where the diagnosis did not use them as recorded: missing samples filled or left out
     /// ([`gaps`]), or a channel not used at all, and why. One plain sentence each.
     pub channel_notes: Vec<String>,
+    /// Catalog effects this recording's channels cannot tell from the nominal model, at any
+    /// size within a bound the fit gives ([`BlindSpot`]): a verdict of none is silent on them.
+    pub blind_spots: Vec<BlindSpot>,
+}
+
+/// A catalog effect the nominal model takes up whole on this recording's channels, so that
+/// no evidence could name it: what it is, how large it could be unseen, and which channel
+/// would show it. Physics, not a shortfall of the search: an independent simulator's four
+/// delays of 0.16–0.26 samples behind first- and second-order stages, with no height sensor
+/// (one beside a hard reference), each left the nominal fit at the floor with its actuator
+/// lag the stage's and the delay's together (37.6–51.9 µs), and each now says so.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct BlindSpot {
+    pub id: &'static str,
+    /// One plain sentence: the bound, and the measurement that would see it.
+    pub why: String,
+}
+
+/// The blind spots of a diagnosis whose final model is `after` (its actuator as fitted),
+/// named `named`, with the drive at `base`, and `height_witness` whether a height sensor
+/// read the stage beside it.
+fn blind_spots_of(
+    after: &ActuatorDynamics,
+    named: &[Effect],
+    base: BasePosition,
+    height_witness: bool,
+) -> Vec<BlindSpot> {
+    let mut spots = Vec::new();
+    // A delay after the stage and the stage's own lag act on the deflection alike: the
+    // contact between them is the only nonlinearity, too small to part them. A hard
+    // reference reads the same chain (delay and all); only the stage's height sensor reads
+    // the stage alone (`SensorLag`).
+    let through_actuator = matches!(
+        base,
+        BasePosition::Drive | BasePosition::CommandedDisplacement
+    );
+    if through_actuator
+        && !height_witness
+        && after.q.is_some()
+        && !named.contains(&Effect::ChannelDelay)
+    {
+        spots.push(BlindSpot {
+            id: Effect::ChannelDelay.id(),
+            why: format!(
+                "a delay of the deflection channel behind the drive, up to the {:.1} µs the nominal actuator's lag took, cannot be told from that lag: only a measured_height_nm column, which reads the stage alone, would show it",
+                after.lag_s * 1e6
+            ),
+        });
+    }
+    spots
 }
 
 impl Diagnosis {
@@ -1641,6 +1691,12 @@ pub fn diagnose_with(
     };
     let (before, after) = (summary(&problem, &nom), summary(&problem, &final_fit));
     let against_floor = against_floor(&problem, &noise, &before, &after);
+    let blind_spots = blind_spots_of(
+        &after.actuator,
+        &final_fit.spec.effects,
+        base_position,
+        witness.is_some(),
+    );
     let mut channel_notes: Vec<String> = gaps
         .channels
         .iter()
@@ -1688,6 +1744,7 @@ pub fn diagnose_with(
         sensor_sigma_nm: witness.as_ref().map(|w| w.sigma_nm),
         reference_sigma_v: reference.as_ref().map(|w| w.sigma_v),
         reference_contact_offset_nm: reference.as_ref().map(|w| w.contact_offset_nm),
+        blind_spots,
         channel_notes,
     })
 }
@@ -3266,7 +3323,8 @@ mod tests {
 
     /// A delay of a fifth of a sample in the deflection's channel behind a stage that lags
     /// half a sample itself: the nominal actuator's lag takes the delay up, and the
-    /// deflection alone names nothing. The stage's height sensor reads the stage's lag
+    /// deflection alone names nothing, and says so as a blind spot bounded by that lag. The
+    /// stage's height sensor reads the stage's lag
     /// alone, which refutes the nominal fit's and names the delay, with an interval about
     /// the truth.
     #[test]
@@ -3292,7 +3350,17 @@ mod tests {
         let lag = alone.before.actuator.lag_s;
         let both = truth_s + stage_lag_s;
         assert!((0.9..1.1).contains(&(lag / both)), "lag {lag} s");
+        // Without the sensor the report says it could not see the delay, and up to what.
+        assert_eq!(alone.blind_spots.len(), 1, "{:?}", alone.blind_spots);
+        let spot = &alone.blind_spots[0];
+        assert_eq!(spot.id, "channel_delay");
+        let bound = format!("up to the {:.1} µs", lag * 1e6);
+        assert!(
+            spot.why.contains(&bound) && spot.why.contains("measured_height_nm"),
+            "{spot:?}"
+        );
         let seen = diagnose(&sensed(&twin, &stage_v, &drive_v, Some(0.05)), &opts).unwrap();
+        assert!(seen.blind_spots.is_empty(), "{:?}", seen.blind_spots);
         let top = &seen.effects[0];
         assert!(top.significant && top.id == "channel_delay", "{top:?}");
         assert!(top.sensor_evidence.unwrap() > 100.0, "{top:?}");
@@ -3312,6 +3380,33 @@ mod tests {
             "{:?}",
             seen.after
         );
+    }
+
+    /// The delay's blind spot needs all four: a drive through the actuator model, no height
+    /// sensor beside it, an actuator lag to hide in, and no delay named.
+    #[test]
+    fn a_delay_is_out_of_sight_only_where_a_lag_can_hide_it() {
+        use super::{blind_spots_of, ActuatorDynamics, BasePosition::*, Effect::*};
+        let lagging = ActuatorDynamics {
+            lag_s: 41e-6,
+            q: Some(0.8),
+        };
+        let ideal = ActuatorDynamics {
+            lag_s: 0.0,
+            q: None,
+        };
+        let spots = blind_spots_of(&lagging, &[TipGeometry], Drive, false);
+        assert_eq!(spots.len(), 1);
+        assert_eq!(spots[0].id, "channel_delay");
+        assert!(spots[0].why.contains("up to the 41.0 µs"), "{spots:?}");
+        assert_eq!(
+            blind_spots_of(&lagging, &[], CommandedDisplacement, false).len(),
+            1
+        );
+        assert!(blind_spots_of(&lagging, &[], HeightSensor, false).is_empty());
+        assert!(blind_spots_of(&lagging, &[], Drive, true).is_empty());
+        assert!(blind_spots_of(&ideal, &[], Drive, false).is_empty());
+        assert!(blind_spots_of(&lagging, &[Adhesion, ChannelDelay], Drive, false).is_empty());
     }
 
     /// A creep of 0.03 %, under a third of the one above: a sensor beside the drive has every

@@ -140,6 +140,10 @@ pub fn diagnosis_json(file: &str, d: &Diagnosis, seconds: f64) -> Value {
         "reference_sigma_v": d.reference_sigma_v,
         "reference_contact_offset_nm": d.reference_contact_offset_nm,
         "channel_notes": d.channel_notes,
+        "blind_spots": d.blind_spots.iter().map(|b| json!({
+            "id": b.id,
+            "why": b.why,
+        })).collect::<Vec<_>>(),
         "weighting": d.weighting.id(),
         "cost": {
             "simulations": d.simulations.total(),
@@ -318,6 +322,9 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
                 println!("    to separate them: {how}");
             }
         }
+    }
+    for b in &d.blind_spots {
+        println!("  cannot see: {} — {}", b.id, b.why);
     }
     println!(
         "fit (held-out samples, never fitted): NRMSE {:.5} before ({}) → {:.5} after ({}), {:+.1} %; χ²/sample {:.3} → {:.3} (1 = noise floor)",
