@@ -3324,9 +3324,8 @@ mod tests {
     /// A delay of a fifth of a sample in the deflection's channel behind a stage that lags
     /// half a sample itself: the nominal actuator's lag takes the delay up, and the
     /// deflection alone names nothing, and says so as a blind spot bounded by that lag. The
-    /// stage's height sensor reads the stage's lag
-    /// alone, which refutes the nominal fit's and names the delay, with an interval about
-    /// the truth.
+    /// stage's height sensor reads the stage's lag alone, which refutes the nominal fit's and
+    /// names the delay, with an interval about the truth.
     #[test]
     fn a_height_sensor_names_a_delay_the_lag_took_up() {
         use crate::twin::{actuator::ResonantMode, dynamics::InputHold};
