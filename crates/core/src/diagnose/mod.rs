@@ -309,10 +309,11 @@ pub struct Diagnosis {
 
 /// A catalog effect the nominal model takes up whole on this recording's channels, so that
 /// no evidence could name it: what it is, how large it could be unseen, and which channel
-/// would show it. Physics, not a shortfall of the search: an independent simulator's four
-/// delays of 0.16–0.26 samples behind first- and second-order stages, with no height sensor
-/// (one beside a hard reference), each left the nominal fit at the floor with its actuator
-/// lag the stage's and the delay's together (37.6–51.9 µs), and each now says so.
+/// would show it. Physics, not a shortfall of the search: an independent simulator's six
+/// delays of 0.16–0.31 samples behind first- and second-order stages, with no height sensor
+/// (three beside a hard reference, two beside a missing relaxation that was named), each
+/// left the fit at the floor with its actuator lag the stage's and the delay's together
+/// (37.6–61.9 µs), and each now says so; its three delays beside a height sensor were named.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct BlindSpot {
     pub id: &'static str,
