@@ -331,6 +331,11 @@ fn blind_spots_of(
     height_witness: bool,
 ) -> Vec<BlindSpot> {
     let mut spots = Vec::new();
+    // Not a blind spot, measured (2026-11-28): an adhesion in a recording that never lets go
+    // of the surface. The corpus protocol cut before its retract, on a twin whose adhesion
+    // pulls the tip off at 0.05 nN (its dip at contact, 0.5 nm, under 6 σ of the floor),
+    // still had the adhesion named, from the contact onset alone (evidence 101; 1084 at
+    // 0.15 nN): the pull-off is not its only sign.
     // A delay after the stage and the stage's own lag act on the deflection alike: the
     // contact between them is the only nonlinearity, too small to part them. A hard
     // reference reads the same chain (delay and all); only the stage's height sensor reads
