@@ -333,13 +333,16 @@ fn blind_spots_of(
     let mut spots = Vec::new();
     // Not a blind spot, measured (2026-11-28): an adhesion in a recording that never lets go
     // of the surface. The corpus protocol cut before its retract, on a twin whose adhesion
-    // pulls the tip off at 0.05 nN (its dip at contact, 0.5 nm, under 6 σ of the floor),
+    // pulls the tip off at 0.05 nN (0.05 nN pulls this lever 0.5 nm, about 5 σ of the floor),
     // still had the adhesion named, from the contact onset alone (evidence 101; 1084 at
     // 0.15 nN): the pull-off is not its only sign.
-    // A delay after the stage and the stage's own lag act on the deflection alike: the
-    // contact between them is the only nonlinearity, too small to part them. A hard
-    // reference reads the same chain (delay and all); only the stage's height sensor reads
-    // the stage alone (`SensorLag`).
+    // A delay after the stage and the stage's own lag act on the deflection alike: a delay
+    // τ is 1 − sτ + s²τ²/2 − …, and behind a stage 1 − b1·s + (b1² − b2)·s² the nominal
+    // stage's two free coefficients match the product to the second order in s (a1 = b1 + τ,
+    // a2 = b2 + b1·τ + τ²/2), leaving terms of the third; the contact between them is the
+    // only nonlinearity, too small to part them. A hard reference reads the same
+    // chain (delay and all); only the stage's height sensor reads the stage alone
+    // (`SensorLag`).
     let through_actuator = matches!(
         base,
         BasePosition::Drive | BasePosition::CommandedDisplacement
@@ -352,7 +355,7 @@ fn blind_spots_of(
         spots.push(BlindSpot {
             id: Effect::ChannelDelay.id(),
             why: format!(
-                "a delay of the deflection channel behind the drive, up to the {:.1} µs the nominal actuator's lag took, cannot be told from that lag: only a measured_height_nm column, which reads the stage alone, would show it",
+                "a delay of the deflection channel behind the drive, up to the {:.1} µs the nominal actuator's lag took, can hide in that lag (the two part only in the third order of frequency × delay): only a measured_height_nm column, which reads the stage alone, would show it",
                 after.lag_s * 1e6
             ),
         });
