@@ -302,14 +302,14 @@ pub struct Diagnosis {
     /// where the diagnosis did not use them as recorded: missing samples filled or left out
     /// ([`gaps`]), or a channel not used at all, and why. One plain sentence each.
     pub channel_notes: Vec<String>,
-    /// Catalog effects this recording's channels cannot tell from the nominal model, at any
-    /// size within a bound the fit gives ([`BlindSpot`]): a verdict of none is silent on them.
+    /// Catalog effects that can hide in the nominal model on this recording's channels, up to
+    /// a bound the fit gives ([`BlindSpot`]): a verdict of none cannot speak for them.
     pub blind_spots: Vec<BlindSpot>,
 }
 
-/// A catalog effect the nominal model takes up whole on this recording's channels, so that
-/// no evidence could name it: what it is, how large it could be unseen, and which channel
-/// would show it. Physics, not a shortfall of the search: an independent simulator's six
+/// A catalog effect the nominal model takes up on this recording's channels all but whole,
+/// so that the evidence for it stays under any fair price: what it is, how large it could
+/// be unseen, and which channel would show it. Physics, not a shortfall of the search: an independent simulator's six
 /// delays of 0.16–0.31 samples behind first- and second-order stages, with no height sensor
 /// (three beside a hard reference, two beside a missing relaxation that was named), each
 /// left the fit at the floor with its actuator lag the stage's and the delay's together
