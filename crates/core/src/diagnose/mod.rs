@@ -309,11 +309,12 @@ pub struct Diagnosis {
 
 /// A catalog effect the nominal model takes up on this recording's channels all but whole,
 /// so that the evidence for it stays under any fair price: what it is, how large it could
-/// be unseen, and which channel would show it. Physics, not a shortfall of the search: an independent simulator's six
-/// delays of 0.16–0.31 samples behind first- and second-order stages, with no height sensor
-/// (three beside a hard reference, two beside a missing relaxation that was named), each
-/// left the fit at the floor with its actuator lag the stage's and the delay's together
-/// (37.6–61.9 µs), and each now says so; its three delays beside a height sensor were named.
+/// be unseen, and which channel would show it. Physics, not a shortfall of the search: an
+/// independent simulator's six delays of 0.16–0.31 samples behind first- and second-order
+/// stages, with no height sensor (three beside a hard reference, two beside a missing
+/// relaxation that was named), each left the fit at the floor with its actuator lag the
+/// stage's and the delay's together (37.6–61.9 µs), and each now says so; its three delays
+/// beside a height sensor were named.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct BlindSpot {
     pub id: &'static str,
@@ -331,18 +332,18 @@ fn blind_spots_of(
     height_witness: bool,
 ) -> Vec<BlindSpot> {
     let mut spots = Vec::new();
+    // A delay after the stage and the stage's own lag act on the deflection alike: a delay
+    // τ is 1 − sτ + s²τ²/2 − …, and behind a stage 1 − b1·s + (b1² − b2)·s² the nominal
+    // stage's two free coefficients match the product to the second order in s (a1 = b1 + τ,
+    // a2 = b2 + b1·τ + τ²/2), leaving terms of the third; the contact between them is the
+    // only nonlinearity, too small to part them. A hard reference reads the same chain
+    // (delay and all); only the stage's height sensor reads the stage alone (`SensorLag`).
+    //
     // Not a blind spot, measured (2026-11-28): an adhesion in a recording that never lets go
     // of the surface. The corpus protocol cut before its retract, on a twin whose adhesion
     // pulls the tip off at 0.05 nN (0.05 nN pulls this lever 0.5 nm, about 5 σ of the floor),
     // still had the adhesion named, from the contact onset alone (evidence 101; 1084 at
     // 0.15 nN): the pull-off is not its only sign.
-    // A delay after the stage and the stage's own lag act on the deflection alike: a delay
-    // τ is 1 − sτ + s²τ²/2 − …, and behind a stage 1 − b1·s + (b1² − b2)·s² the nominal
-    // stage's two free coefficients match the product to the second order in s (a1 = b1 + τ,
-    // a2 = b2 + b1·τ + τ²/2), leaving terms of the third; the contact between them is the
-    // only nonlinearity, too small to part them. A hard reference reads the same
-    // chain (delay and all); only the stage's height sensor reads the stage alone
-    // (`SensorLag`).
     let through_actuator = matches!(
         base,
         BasePosition::Drive | BasePosition::CommandedDisplacement
@@ -898,7 +899,7 @@ pub fn diagnose_with(
     // The nominal fit chosen is then refitted from where it stopped with the actuator's
     // damping at either end of its range: below a quarter sample's lag, or at a bound of its
     // range, the damping is held where it starts (`model::frees_parameter`; a fit that
-    // stopped at a bound is refitted at both, held), and at its start (Q 0.8) a stage with a
+    // stopped at a bound is refitted at the other, held), and at its start (Q 0.8) a stage with a
     // first-order lag (Q → 0) or a lightly damped mode could only be fitted with the wrong
     // lag, leaving a misfit at the fast lines that a resonance candidate then took up (an
     // independent simulator's closed-loop stage, a first-order lag at 3–6 kHz sampled at
@@ -911,12 +912,19 @@ pub fn diagnose_with(
             // The damping was free in that fit: it is where the fit put it.
             return f;
         }
-        // A fit that stopped at a bound is refitted at the other one only: refitted, held,
-        // at its own, it restarts from where it stopped, and cannot gain the price below.
-        let at_bound = model::damping_at_bound(&f.theta, lag);
-        let ends: Vec<Vec<f64>> = [0.0, std::f64::consts::PI]
+        // A fit that stopped at a bound (Q 0.1 at a phase of 0, 1.5 at π) is refitted at the
+        // other one only: refitted, held, at its own, it restarts from where it stopped, and
+        // cannot gain the price below.
+        use std::f64::consts::PI;
+        let to: &[f64] = if !model::damping_at_bound(&f.theta, lag) {
+            &[0.0, PI]
+        } else if f.theta[damp].cos() > 0.0 {
+            &[PI]
+        } else {
+            &[0.0]
+        };
+        let ends: Vec<Vec<f64>> = to
             .iter()
-            .filter(|q| !at_bound || (f.theta[damp].cos() - q.cos()).abs() > 1.0)
             .map(|q| {
                 let mut t = f.theta.clone();
                 t[damp] = *q;
