@@ -32,6 +32,7 @@
 pub mod bench;
 pub mod corpus;
 pub mod fit;
+pub mod limit;
 pub mod locate;
 pub mod model;
 pub mod noise;
@@ -47,6 +48,7 @@ use crate::twin::TipConfig;
 use fit::{
     fit_model, orthonormal_basis, restarted, scan_step_parameters, screen, FitOptions, Fitted,
 };
+use limit::DetectionLimit;
 use locate::{Location, Phase};
 use model::{
     AdhesionForm, Effect, ModelSpec, Problem, ResonanceForm, TipForm, DEFAULT_NOMINAL_TERMS,
@@ -157,6 +159,10 @@ pub struct EffectReport {
     /// Why a candidate that beat every margin is not named all the same (a mode fitted
     /// beyond what the record samples, a drag fitted negative).
     pub refused: Option<&'static str>,
+    /// The smallest size at which this recording would have named the candidate ([`limit`]):
+    /// only for the candidates of one shape ([`limit::limit_spec`]), and `None` where the
+    /// nominal model takes it up whole.
+    pub detection_limit: Option<DetectionLimit>,
     pub description: &'static str,
 }
 
@@ -323,13 +329,14 @@ pub struct BlindSpot {
 }
 
 /// The blind spots of a diagnosis whose final model is `after` (its actuator as fitted),
-/// named `named`, with the drive at `base`, and `height_witness` whether a height sensor
-/// read the stage beside it.
+/// named `named`, with the drive at `base`, `height_witness` whether a height sensor read
+/// the stage beside it, and `delay_limit` the delay's detection limit, where one was drawn.
 fn blind_spots_of(
     after: &ActuatorDynamics,
     named: &[Effect],
     base: BasePosition,
     height_witness: bool,
+    delay_limit: Option<&DetectionLimit>,
 ) -> Vec<BlindSpot> {
     let mut spots = Vec::new();
     // A delay after the stage and the stage's own lag act on the deflection alike: a delay
@@ -353,12 +360,23 @@ fn blind_spots_of(
         && after.q.is_some()
         && !named.contains(&Effect::ChannelDelay)
     {
-        spots.push(BlindSpot {
-            id: Effect::ChannelDelay.id(),
-            why: format!(
+        // The bound: the delay's detection limit where one was drawn (the size this record
+        // names a delay from), else the lag the nominal actuator took.
+        let why = match delay_limit {
+            Some(l) => format!(
+                "a delay of the deflection channel behind the drive hides in the nominal actuator's {:.1} µs lag, which takes up {:.2} % of its signature (the two part only in the third order of frequency × delay): this recording names one only from about {:.1} µs; a measured_height_nm column, which reads the stage alone, would show a smaller one",
+                after.lag_s * 1e6,
+                100.0 * l.absorbed,
+                l.value * 1e6
+            ),
+            None => format!(
                 "a delay of the deflection channel behind the drive, up to the {:.1} µs the nominal actuator's lag took, can hide in that lag (the two part only in the third order of frequency × delay): only a measured_height_nm column, which reads the stage alone, would show it",
                 after.lag_s * 1e6
             ),
+        };
+        spots.push(BlindSpot {
+            id: Effect::ChannelDelay.id(),
+            why,
         });
     }
     spots
@@ -476,6 +494,8 @@ struct Examined {
     locations_before: Vec<Location>,
     /// Every candidate with its screening's χ² drop and its best screening θ, strongest first.
     screened: Vec<(Effect, f64, Vec<f64>)>,
+    /// Each screened candidate's detection limit against this nominal fit.
+    limits: Vec<(Effect, Option<DetectionLimit>)>,
     /// Indices into `screened` of the candidates refitted.
     to_refit: Vec<usize>,
     /// The refitted candidates, each in its best form.
@@ -1065,6 +1085,18 @@ pub fn diagnose_with(
         .max(1) as f64;
         k * n_tr.ln() + th.train_margin
     };
+    // Whether the deflection is the only witness of the chain (no height sensor, no hard
+    // reference): the detection limits count its evidence alone.
+    let deflection_only = rec.measured_height_nm.is_none() && rec.reference_deflection_v.is_none();
+    // The drops a candidate must be expected to reach to be named against `nom`.
+    // (In the form `spec` the limit is drawn in, which is the form screened.)
+    let needed_of = |spec: &ModelSpec, nom: &Fitted| {
+        let k =
+            (model::n_params(&problem, spec) - model::n_params(&problem, &nominal)).max(1) as f64;
+        let held_excess = (nom.eval.chi2_held - n_ho).max(0.0);
+        let penalty = k * n_tr.ln() + th.train_margin;
+        limit::Needed::of(k, penalty, th.held_base, th.held_fraction, held_excess)
+    };
     // The forms are told apart on every sample: a form that fits the training blocks with an
     // event (a neck's snap-off) in the wrong place shows it on the held-out ones.
     let bic = |f: &Fitted| {
@@ -1135,6 +1167,24 @@ pub fn diagnose_with(
         .flatten()
         .collect();
         screened.sort_by(|a, b| b.1.total_cmp(&a.1));
+        // How large each would have had to be (one simulation each, at its screened θ).
+        let tangent = limit::nominal_tangent(&problem, nom);
+        // From the deflection alone: where a height sensor or a hard reference witnesses the
+        // chain, its evidence names a delay far below what the deflection alone would (an
+        // independent simulator's 9.4 µs delay beside a sensor, at 6598 held-out units, where
+        // the deflection's limit was 446 µs), and the limit would understate the record.
+        let one_shape: Vec<(Effect, ModelSpec, &Vec<f64>)> = screened
+            .iter()
+            .filter(|_| deflection_only)
+            .filter_map(|(e, _, th)| Some((*e, limit::limit_spec(&nominal, *e)?, th)))
+            .collect();
+        let limits = fan::map(fan, one_shape.len(), |i| {
+            let (e, spec, th) = &one_shape[i];
+            let needed = needed_of(spec, nom);
+            let l =
+                limit::detection_limit(&problem, nom, &tangent, spec, th, needed, noise.sigma_v);
+            (*e, l)
+        });
         let sims_screen = problem.simulations();
 
         // 4. Full refits of the strongest, then pairs.
@@ -1271,6 +1321,7 @@ pub fn diagnose_with(
             white_nom,
             locations_before,
             screened,
+            limits,
             to_refit,
             singles,
             plain_forms,
@@ -1366,6 +1417,7 @@ pub fn diagnose_with(
         white_nom,
         locations_before,
         screened,
+        limits,
         to_refit,
         singles,
         plain_forms,
@@ -1492,6 +1544,7 @@ pub fn diagnose_with(
             reference,
         }
     };
+    let limit_of = |e: Effect| limits.iter().find(|l| l.0 == e).and_then(|l| l.1.clone());
     let mut reports: Vec<EffectReport> = vec![];
     let mut sig_singles: Vec<(Effect, Fitted, f64)> = vec![];
     for (e, f) in &singles {
@@ -1527,6 +1580,7 @@ pub fn diagnose_with(
             sensor_evidence: j.sensor.map(|s| s.1),
             reference_evidence: j.reference.map(|s| s.1),
             refused: j.refused,
+            detection_limit: limit_of(*e),
             description: e.describe(),
         });
     }
@@ -1548,6 +1602,7 @@ pub fn diagnose_with(
             sensor_evidence: None,
             reference_evidence: None,
             refused: None,
+            detection_limit: limit_of(*e),
             description: e.describe(),
         });
     }
@@ -1713,6 +1768,10 @@ pub fn diagnose_with(
         &final_fit.spec.effects,
         base_position,
         witness.is_some(),
+        limits
+            .iter()
+            .find(|l| l.0 == Effect::ChannelDelay)
+            .and_then(|l| l.1.as_ref()),
     );
     let mut channel_notes: Vec<String> = gaps
         .channels
@@ -3370,9 +3429,20 @@ mod tests {
         assert_eq!(alone.blind_spots.len(), 1, "{:?}", alone.blind_spots);
         let spot = &alone.blind_spots[0];
         assert_eq!(spot.id, "channel_delay");
-        let bound = format!("up to the {:.1} µs", lag * 1e6);
+        // The bound is the delay's detection limit: above the truth, which went unnamed.
+        let limit = alone
+            .effects
+            .iter()
+            .find(|e| e.id == "channel_delay")
+            .and_then(|e| e.detection_limit.clone())
+            .expect("a delay's limit");
+        assert!(limit.value > truth_s, "{limit:?}");
+        let bound = format!("only from about {:.1} µs", limit.value * 1e6);
+        let lag_text = format!("{:.1} µs lag", lag * 1e6);
         assert!(
-            spot.why.contains(&bound) && spot.why.contains("measured_height_nm"),
+            spot.why.contains(&bound)
+                && spot.why.contains(&lag_text)
+                && spot.why.contains("measured_height_nm"),
             "{spot:?}"
         );
         let seen = diagnose(&sensed(&twin, &stage_v, &drive_v, Some(0.05)), &opts).unwrap();
@@ -3398,6 +3468,49 @@ mod tests {
         );
     }
 
+    /// The detection limits are what they say, on a twin without a height sensor or a hard
+    /// reference: at half its limit an effect of that shape is not named, at twice it is
+    /// named first. A delay (its signature mostly taken up by the nominal lag) and a drift of
+    /// the detector's zero, each from the one clean record's limits.
+    #[test]
+    fn effects_are_named_from_their_detection_limits() {
+        use crate::twin::TwinConfig;
+        let twin = nominal_twin(23);
+        let clean = diagnosed(&twin, 2000.0);
+        let limit = |id: &str| {
+            let e = clean.effects.iter().find(|e| e.id == id).unwrap();
+            e.detection_limit
+                .clone()
+                .unwrap_or_else(|| panic!("no limit: {e:?}"))
+        };
+        type Knob = fn(&mut TwinConfig, f64);
+        let knobs: [(&str, &str, &str, Knob); 2] = [
+            ("channel_delay", "delay_s", "s", |t, v| {
+                t.detector.delay_s = v
+            }),
+            ("thermal_drift", "drift_v_per_s", "V/s", |t, v| {
+                t.detector.drift_v_per_s = v
+            }),
+        ];
+        for (id, param, unit, knob) in knobs {
+            let l = limit(id);
+            assert_eq!((l.param.as_str(), l.unit), (param, unit), "{l:?}");
+            for (scale, named) in [(0.5, false), (2.0, true)] {
+                let mut t = twin.clone();
+                knob(&mut t, scale * l.value);
+                let d = diagnosed(&t, 2000.0);
+                let (first, anywhere) = (d.named().first() == Some(&id), d.named().contains(&id));
+                assert!(
+                    if named { first } else { !anywhere },
+                    "{id} at {scale} × {l:?}: named {:?}",
+                    d.named()
+                );
+            }
+        }
+        // The lag takes up nearly all of a delay's signature.
+        assert!(limit("channel_delay").absorbed > 0.5);
+    }
+
     /// The delay's blind spot needs all four: a drive through the actuator model, no height
     /// sensor beside it, an actuator lag to hide in, and no delay named.
     #[test]
@@ -3411,18 +3524,34 @@ mod tests {
             lag_s: 0.0,
             q: None,
         };
-        let spots = blind_spots_of(&lagging, &[TipGeometry], Drive, false);
+        let spots = blind_spots_of(&lagging, &[TipGeometry], Drive, false, None);
         assert_eq!(spots.len(), 1);
         assert_eq!(spots[0].id, "channel_delay");
         assert!(spots[0].why.contains("up to the 41.0 µs"), "{spots:?}");
+        // With the delay's detection limit, the bound is the limit.
+        let limit = super::DetectionLimit {
+            param: "delay_s".into(),
+            unit: "s",
+            value: 63.21e-6,
+            rms_v: 1e-3,
+            over_floor: 2.0,
+            absorbed: 0.9987,
+        };
+        let spots = blind_spots_of(&lagging, &[], Drive, false, Some(&limit));
+        assert!(
+            spots[0].why.contains("41.0 µs lag, which takes up 99.87 %")
+                && spots[0].why.contains("only from about 63.2 µs"),
+            "{spots:?}"
+        );
         assert_eq!(
-            blind_spots_of(&lagging, &[], CommandedDisplacement, false).len(),
+            blind_spots_of(&lagging, &[], CommandedDisplacement, false, None).len(),
             1
         );
-        assert!(blind_spots_of(&lagging, &[], HeightSensor, false).is_empty());
-        assert!(blind_spots_of(&lagging, &[], Drive, true).is_empty());
-        assert!(blind_spots_of(&ideal, &[], Drive, false).is_empty());
-        assert!(blind_spots_of(&lagging, &[Adhesion, ChannelDelay], Drive, false).is_empty());
+        assert!(blind_spots_of(&lagging, &[], HeightSensor, false, None).is_empty());
+        assert!(blind_spots_of(&lagging, &[], Drive, true, None).is_empty());
+        assert!(blind_spots_of(&ideal, &[], Drive, false, None).is_empty());
+        let both = [Adhesion, ChannelDelay];
+        assert!(blind_spots_of(&lagging, &both, Drive, false, None).is_empty());
     }
 
     /// A creep of 0.03 %, under a third of the one above: a sensor beside the drive has every

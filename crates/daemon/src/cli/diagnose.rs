@@ -98,6 +98,12 @@ pub fn diagnosis_json(file: &str, d: &Diagnosis, seconds: f64) -> Value {
             "sensor_evidence": e.sensor_evidence,
             "reference_evidence": e.reference_evidence,
             "refused": e.refused,
+            "detection_limit": e.detection_limit.as_ref().map(|l| json!({
+                "param": {"name": l.param, "unit": l.unit, "value": l.value},
+                "rms_v": l.rms_v,
+                "over_floor": l.over_floor,
+                "absorbed": l.absorbed,
+            })),
             "description": e.description,
             "params": e.params.iter().map(|p| (p.name.clone(), json!({
                 "value": p.value,
@@ -326,6 +332,19 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
     for b in &d.blind_spots {
         println!("  cannot see: {} — {}", b.id, b.why);
     }
+    for e in d.effects.iter().filter(|e| !e.significant) {
+        if let Some(l) = &e.detection_limit {
+            println!(
+                "  would be named from: {} ({}) of {} (a signature of {:.3} mV rms, {:.2} σ of the floor, of which the nominal fit takes up {:.2} %; from the deflection alone)",
+                e.id,
+                l.param,
+                size_text(l.value, l.unit),
+                l.rms_v * 1e3,
+                l.over_floor,
+                100.0 * l.absorbed
+            );
+        }
+    }
     println!(
         "fit (held-out samples, never fitted): NRMSE {:.5} before ({}) → {:.5} after ({}), {:+.1} %; χ²/sample {:.3} → {:.3} (1 = noise floor)",
         d.before.held_out_nrmse,
@@ -453,6 +472,15 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
                 }
             );
         }
+    }
+}
+
+/// A detection limit's size in a unit a person reads at a glance: a delay in µs, others as
+/// reported.
+fn size_text(value: f64, unit: &str) -> String {
+    match unit {
+        "s" => format!("{:.1} µs", value * 1e6),
+        _ => format!("{value:.3e} {unit}"),
     }
 }
 
