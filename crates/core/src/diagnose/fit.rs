@@ -598,12 +598,16 @@ pub fn screen(
         (rv - q * c).norm_squared()
     };
     let fits: Vec<Option<(f64, Vec<f64>)>> = if free.is_empty() {
-        // Nothing to fit (one start, in practice): an evaluation per start, and none at all
-        // when one fails.
+        // Nothing to fit but the closed-form terms (one start, in practice), which follow
+        // the nominal parameters' first order too: the residual before them and their
+        // columns are taken off the nominal tangent and the offset, and the terms fitted to
+        // what is left. Fitted to the raw residual, a term the nominal fit mostly takes up
+        // (a detector's curvature, 99.9 % of it) came out shrunk by that share, and its
+        // drop with it. Under noise alone the drop is still χ² of the terms' count.
         let mut v = vec![];
         for s in starts {
-            let e = problem.evaluate(spec, s)?;
-            v.push(Some((projected(&e.train_residuals), s.clone())));
+            let (r0, columns) = problem.open_columns(spec, s)?;
+            v.push(Some((projected_closed_form(&r0, &columns, q), s.clone())));
         }
         v
     } else {
@@ -620,6 +624,43 @@ pub fn screen(
         }
     }
     best
+}
+
+/// The screened χ² of a model whose own terms are all closed-form: `r0` (the residual before
+/// them) less its best fit by `columns` (the offset first, then the terms), both taken off
+/// the nominal tangent `q` and the offset.
+fn projected_closed_form(r0: &[f64], columns: &[Vec<f64>], q: &DMatrix<f64>) -> f64 {
+    let n = r0.len();
+    let Some((offset, terms)) = columns.split_first() else {
+        return f64::INFINITY;
+    };
+    let mut t = DMatrix::<f64>::zeros(n, q.ncols() + 1);
+    t.columns_mut(0, q.ncols()).copy_from(q);
+    t.set_column(q.ncols(), &DVector::from_column_slice(offset));
+    let tangent = t.qr().q();
+    let off = |x: DVector<f64>| -> DVector<f64> {
+        let c = tangent.transpose() * &x;
+        x - &tangent * c
+    };
+    let u = off(DVector::from_column_slice(r0));
+    if terms.is_empty() {
+        return u.norm_squared();
+    }
+    let mut a = DMatrix::<f64>::zeros(n, terms.len());
+    for (k, col) in terms.iter().enumerate() {
+        a.set_column(k, &off(DVector::from_column_slice(col)));
+    }
+    // The terms' span, by its orthonormal basis, less directions the tangent took whole.
+    let svd = a.svd(true, false);
+    let Some(basis) = svd.u else {
+        return u.norm_squared();
+    };
+    let top = svd.singular_values.max();
+    let explained: f64 = (0..svd.singular_values.len())
+        .filter(|&k| svd.singular_values[k] > 1e-9 * top)
+        .map(|k| basis.column(k).dot(&u).powi(2))
+        .sum();
+    u.norm_squared() - explained
 }
 
 /// An orthonormal basis of the columns of `j` (thin QR), for [`screen`].
@@ -932,5 +973,36 @@ mod tests {
         // And the fit did something: the delay moved, the χ² is finite.
         assert!(a.eval.chi2_train.is_finite());
         assert!(na > 3 * a.theta.len());
+    }
+
+    /// A closed-form term the nominal tangent takes up all but a hundredth of is screened by
+    /// what it adds beyond the tangent: a residual that is exactly its visible part is
+    /// explained whole (a raw fit of the term would take 1/10⁴ of it), one the term cannot
+    /// reach is left whole, and with no term the residual is the residual off the tangent.
+    #[test]
+    fn a_closed_form_term_is_screened_off_the_nominal_tangent() {
+        let n = 1000;
+        // Zero-mean, mutually orthogonal: a sine (the tangent), a square wave (the term's
+        // visible part) and a cosine at another frequency (what the term cannot reach).
+        let wave = |f: &dyn Fn(usize) -> f64| DVector::from_fn(n, |i, _| f(i));
+        let tau = std::f64::consts::TAU;
+        let sine = wave(&|i| (tau * 5.0 * i as f64 / n as f64).sin());
+        let square = wave(&|i| if (i / 50) % 2 == 0 { 1.0 } else { -1.0 });
+        let other = wave(&|i| (tau * 7.0 * i as f64 / n as f64).cos());
+        let q = DMatrix::from_columns(&[sine.normalize()]);
+        let ones = vec![1.0; n];
+        let term = &sine * (100.0 * square.norm() / sine.norm()) + &square;
+        let columns = vec![ones, term.as_slice().to_vec()];
+        let visible = square.clone() * 3.0;
+        let chi2 = projected_closed_form(visible.as_slice(), &columns, &q);
+        assert!(chi2.abs() < 1e-6 * visible.norm_squared(), "{chi2}");
+        // The raw fit's share: the term's projection of the residual, over its norm.
+        let raw = visible.dot(&term).powi(2) / term.norm_squared();
+        assert!(raw < 2e-4 * visible.norm_squared(), "{raw}");
+        let unreachable = other.clone() + &sine * 5.0;
+        let chi2 = projected_closed_form(unreachable.as_slice(), &columns, &q);
+        assert!((chi2 / other.norm_squared() - 1.0).abs() < 1e-6, "{chi2}");
+        let chi2 = projected_closed_form(unreachable.as_slice(), &columns[..1], &q);
+        assert!((chi2 / other.norm_squared() - 1.0).abs() < 1e-6, "{chi2}");
     }
 }

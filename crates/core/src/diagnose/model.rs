@@ -1528,15 +1528,19 @@ impl Problem {
         self.simulations.load(std::sync::atomic::Ordering::Relaxed)
     }
 
-    /// Evaluates θ: simulation, closed-form coefficients on the train samples, χ² on both sets.
-    pub fn evaluate(&self, spec: &ModelSpec, th: &[f64]) -> Option<Evaluation> {
-        let sim = self.simulate(spec, th)?;
-        let r0: Vec<f64> = self
-            .deflection_v
+    /// The recorded deflection less the simulation's, before any closed-form term, V.
+    fn unexplained(&self, sim: &Simulation) -> Vec<f64> {
+        self.deflection_v
             .iter()
             .zip(&sim.clean_v)
             .map(|(y, m)| y - m)
-            .collect();
+            .collect()
+    }
+
+    /// Evaluates θ: simulation, closed-form coefficients on the train samples, χ² on both sets.
+    pub fn evaluate(&self, spec: &ModelSpec, th: &[f64]) -> Option<Evaluation> {
+        let sim = self.simulate(spec, th)?;
+        let r0 = self.unexplained(&sim);
         let regs = self.regressors(spec, &sim);
         let fixed = self.fixed_columns();
         let wr = self.whiten(&r0);
@@ -1610,6 +1614,22 @@ impl Problem {
             linear_sd,
             sim,
         })
+    }
+
+    /// For screening a model whose own terms are all closed-form: the train rows of its
+    /// whitened residual before any closed-form coefficient, and of each of its closed-form
+    /// columns (the offset first), in χ² units (over σ).
+    pub fn open_columns(&self, spec: &ModelSpec, th: &[f64]) -> Option<(Vec<f64>, Vec<Vec<f64>>)> {
+        let sim = self.simulate(spec, th)?;
+        let r0 = self.unexplained(&sim);
+        let s = self.sigma_w_v;
+        let train = |w: &[f64]| -> Vec<f64> { self.train.iter().map(|&i| w[i] / s).collect() };
+        let columns = self
+            .regressors(spec, &sim)
+            .iter()
+            .map(|r| train(&r.white))
+            .collect();
+        Some((train(&self.whiten(&r0)), columns))
     }
 
     /// Reported parameters of `effect` in a fitted model: `(name, unit, value, ci95)`.
