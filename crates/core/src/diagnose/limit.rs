@@ -22,17 +22,17 @@
 //!
 //! Only for the candidates of one shape ([`limit_spec`]): to first order their signature is
 //! their size times a fixed waveform (a delay's, the deflection's rate; a drag's, the base's
-//! velocity; a drift's, time), whatever size the screening fitted. The other candidates'
-//! shape is itself fitted — a detector's mix of v² and v³, a retardation time's τ, a
-//! creep's — and on a record without them it is fitted to the noise, which picks the shape
-//! the nominal model takes up least. A limit drawn from it speaks for that shape alone: on an
-//! independent simulator's detector curvature (old rec10, 1.7 σ rms, never named: its
-//! screening drop 4.0 against 29.0) the screened mix gave a limit of 0.17 σ with 89 % taken
-//! up, while the recorded curvature had nearly all of its signature taken up (2026-11-28,
-//! not kept). A cubic detector alone has one shape, but its screening (in both terms) did
-//! not reach what its limit promised: on the twin, at twice its limit (0.0069 V⁻², 99.88 %
-//! of its signature taken up) it screened at 17 against the 28 its two terms must pay, and
-//! was not named; at four times it was (2026-11-28, not kept).
+//! velocity; a drift's, time; a cubic detector's, the deflection cubed), whatever size the
+//! screening fitted. The other candidates' shape is itself fitted — a detector's mix of v²
+//! and v³, a retardation time's τ, a creep's — and on a record without them it is fitted to
+//! the noise, which picks the shape the nominal model takes up least. A limit drawn from it
+//! speaks for that shape alone: on an independent simulator's detector curvature (old
+//! rec10, 1.7 σ rms, never named: its screening drop 4.0 against 29.0) the screened mix gave
+//! a limit of 0.17 σ with 89 % taken up, while the recorded curvature had nearly all of its
+//! signature taken up (2026-11-28, not kept). The detector's limit is its cubic term's
+//! alone. It holds since the screening fits closed-form terms off the nominal tangent
+//! (`fit::screen`): fitted to the raw residual, a cubic at twice its limit (0.0069 V⁻²,
+//! 99.88 % of it taken up) screened at 17 against the 28 its two terms pay, unnamed.
 //!
 //! The nominal fit's take is its first order (a refit may take up more of a large
 //! signature); the height sensor's and the hard reference's evidence (`witness`) are not
@@ -43,20 +43,25 @@
 //! the held-out margin (12 against 18) and one and a half times it was named.
 
 use super::fit::Fitted;
-use super::model::{DriftForm, Effect, ModelSpec, Problem};
+use super::model::{DriftForm, Effect, ModelSpec, NonlinearityForm, Problem};
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 
 /// The model a detection limit of `effect` is drawn in: `nominal` with `effect` in a form
 /// whose signature is, to first order, its one size parameter times a fixed waveform — a
 /// delay (the deflection's rate), a drag (the base's velocity), a linear drift of the
-/// detector's zero (time) — and the form the screening tries, so that the price it must pay
-/// there is the one the limit counts. `None` for the candidates whose shape is itself fitted.
+/// detector's zero (time), a cubic detector (the deflection cubed: the twin's own form, a
+/// detector that saturates symmetrically). Its price is the form screened's (a detector's
+/// two terms). `None` for the candidates whose shape is itself fitted.
 pub fn limit_spec(nominal: &ModelSpec, effect: Effect) -> Option<ModelSpec> {
     let spec = nominal.with(&[effect]);
     match effect {
         Effect::ChannelDelay | Effect::HydrodynamicDrag => Some(spec),
         Effect::ThermalDrift if spec.drift == DriftForm::Deflection => Some(spec),
+        Effect::DetectorNonlinearity => Some(ModelSpec {
+            nonlinearity: NonlinearityForm::Cubic,
+            ..spec
+        }),
         _ => None,
     }
 }
