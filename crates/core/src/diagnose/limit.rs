@@ -83,6 +83,16 @@ pub struct DetectionLimit {
     pub absorbed: f64,
 }
 
+impl DetectionLimit {
+    /// `absorbed` as a percentage with the digits that tell it from 100: "99.87 %", or
+    /// "99.9986 %" where two decimals would round a visible sliver to 100.
+    pub fn absorbed_text(&self) -> String {
+        let pct = 100.0 * self.absorbed;
+        let digits = if 100.0 - pct < 0.01 { 4 } else { 2 };
+        format!("{pct:.digits$} %")
+    }
+}
+
 /// The χ² drops a candidate must be expected to reach to be named: on the train samples and
 /// on the held-out ones.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -336,6 +346,12 @@ mod tests {
         let w = DVector::from_vec(mixed.clone());
         let (_, l) = limit_of(&mixed, &w, 2.0 * energy, &tangent, RULE, 1.0).unwrap();
         assert!((l.absorbed - 0.5).abs() < 1e-12, "{l:?}");
+        assert_eq!(l.absorbed_text(), "50.00 %");
+        let sliver = DetectionLimit {
+            absorbed: 0.999_986,
+            ..l.clone()
+        };
+        assert_eq!(sliver.absorbed_text(), "99.9986 %");
         assert!(
             (l.rms_v - (30.0 / energy).sqrt() * rms(&mixed)).abs() < 1e-12,
             "{l:?}"

@@ -364,9 +364,9 @@ fn blind_spots_of(
         // names a delay from), else the lag the nominal actuator took.
         let why = match delay_limit {
             Some(l) => format!(
-                "a delay of the deflection channel behind the drive hides in the nominal actuator's {:.1} µs lag, which takes up {:.2} % of its signature (the two part only in the third order of frequency × delay): this recording names one only from about {:.1} µs; a measured_height_nm column, which reads the stage alone, would show a smaller one",
+                "a delay of the deflection channel behind the drive hides in the nominal actuator's {:.1} µs lag, which takes up {} of its signature (the two part only in the third order of frequency × delay): this recording names one only from about {:.1} µs; a measured_height_nm column, which reads the stage alone, would show a smaller one",
                 after.lag_s * 1e6,
-                100.0 * l.absorbed,
+                l.absorbed_text(),
                 l.value * 1e6
             ),
             None => format!(

@@ -335,13 +335,13 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
     for e in d.effects.iter().filter(|e| !e.significant) {
         if let Some(l) = &e.detection_limit {
             println!(
-                "  would be named from: {} ({}) of {} (a signature of {:.3} mV rms, {:.2} σ of the floor, of which the nominal fit takes up {:.2} %; from the deflection alone)",
+                "  would be named from: {} ({}) of {} (a signature of {:.3} mV rms, {:.2} σ of the floor, of which the nominal fit takes up {}; from the deflection alone)",
                 e.id,
                 l.param,
                 size_text(l.value, l.unit),
                 l.rms_v * 1e3,
                 l.over_floor,
-                100.0 * l.absorbed
+                l.absorbed_text()
             );
         }
     }
