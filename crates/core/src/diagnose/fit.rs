@@ -634,10 +634,7 @@ fn projected_closed_form(r0: &[f64], columns: &[Vec<f64>], q: &DMatrix<f64>) -> 
     let Some((offset, terms)) = columns.split_first() else {
         return f64::INFINITY;
     };
-    let mut t = DMatrix::<f64>::zeros(n, q.ncols() + 1);
-    t.columns_mut(0, q.ncols()).copy_from(q);
-    t.set_column(q.ncols(), &DVector::from_column_slice(offset));
-    let tangent = t.qr().q();
+    let tangent = tangent_with_offset(q, offset);
     let off = |x: DVector<f64>| -> DVector<f64> {
         let c = tangent.transpose() * &x;
         x - &tangent * c
@@ -661,6 +658,15 @@ fn projected_closed_form(r0: &[f64], columns: &[Vec<f64>], q: &DMatrix<f64>) -> 
         .map(|k| basis.column(k).dot(&u).powi(2))
         .sum();
     u.norm_squared() - explained
+}
+
+/// An orthonormal basis of the nominal model's tangent space on the train samples: the
+/// columns of its Jacobian `j` (or of a basis of them) and its whitened `offset` column.
+pub fn tangent_with_offset(j: &DMatrix<f64>, offset: &[f64]) -> DMatrix<f64> {
+    let mut m = DMatrix::<f64>::zeros(j.nrows(), j.ncols() + 1);
+    m.columns_mut(0, j.ncols()).copy_from(j);
+    m.set_column(j.ncols(), &DVector::from_column_slice(offset));
+    m.qr().q()
 }
 
 /// An orthonormal basis of the columns of `j` (thin QR), for [`screen`].

@@ -125,11 +125,7 @@ impl Needed {
 pub fn nominal_tangent(problem: &Problem, nom: &Fitted) -> DMatrix<f64> {
     let ones = problem.whiten(&vec![1.0; problem.deflection_v.len()]);
     let offset: Vec<f64> = problem.train.iter().map(|&i| ones[i]).collect();
-    let j = &nom.jacobian;
-    let mut m = DMatrix::<f64>::zeros(j.nrows(), j.ncols() + 1);
-    m.columns_mut(0, j.ncols()).copy_from(j);
-    m.set_column(j.ncols(), &DVector::from_vec(offset));
-    m.qr().q()
+    super::fit::tangent_with_offset(&nom.jacobian, &offset)
 }
 
 /// The detection limit of the candidate `spec` screened at `theta` (its nominal part that of

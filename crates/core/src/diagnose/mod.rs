@@ -1174,8 +1174,8 @@ pub fn diagnose_with(
         .flatten()
         .collect();
         screened.sort_by(|a, b| b.1.total_cmp(&a.1));
-        // How large each would have had to be (one simulation each, at its screened θ).
-        let tangent = limit::nominal_tangent(&problem, nom);
+        // How large each candidate of one shape would have had to be (a simulation each; a
+        // delay's size is searched, up to `limit::SIZE_STEPS` more).
         // From the deflection alone: where a height sensor or a hard reference witnesses the
         // chain, its evidence names a delay far below what the deflection alone would (an
         // independent simulator's 9.4 µs delay beside a sensor, at 6598 held-out units, where
@@ -1185,11 +1185,14 @@ pub fn diagnose_with(
             .filter(|_| deflection_only)
             .filter_map(|(e, _, th)| Some((*e, limit::limit_spec(&nominal, *e)?, th)))
             .collect();
+        // The tangent's QR only where a limit is drawn.
+        let tangent = (!one_shape.is_empty()).then(|| limit::nominal_tangent(&problem, nom));
         let limits = fan::map(fan, one_shape.len(), |i| {
             let (e, spec, th) = &one_shape[i];
             let needed = needed_of(*e, nom);
-            let l =
-                limit::detection_limit(&problem, nom, &tangent, spec, th, needed, noise.sigma_v);
+            let l = tangent.as_ref().and_then(|t| {
+                limit::detection_limit(&problem, nom, t, spec, th, needed, noise.sigma_v)
+            });
             (*e, l)
         });
         let sims_screen = problem.simulations();
