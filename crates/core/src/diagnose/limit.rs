@@ -44,6 +44,7 @@
 
 use super::fit::Fitted;
 use super::model::{DriftForm, Effect, ModelSpec, NonlinearityForm, Problem};
+use super::noise::NoiseModel;
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 
@@ -81,6 +82,10 @@ pub struct DetectionLimit {
     /// Share (0–1) of the signature's χ² that the nominal refit takes up: what it must make
     /// up for by size. Near 1 the effect hides behind the nominal model.
     pub absorbed: f64,
+    /// How many times the drops the limit asks for were raised for the floor's 1/f noise
+    /// continued below the band it was measured on ([`NoiseModel::low_band_inflation`]);
+    /// 1 on a floor flat at its bottom.
+    pub floor_inflation: f64,
 }
 
 impl DetectionLimit {
@@ -130,9 +135,10 @@ pub fn nominal_tangent(problem: &Problem, nom: &Fitted) -> DMatrix<f64> {
 
 /// The detection limit of the candidate `spec` screened at `theta` (its nominal part that of
 /// `nom`), against the nominal tangent space `tangent` ([`nominal_tangent`]), where the drops
-/// `needed` name it; `floor_sigma_v` the raw noise σ. `None` where the candidate cannot be
-/// simulated there or adds nothing visible (a signature the nominal model takes up whole, or
-/// none at all).
+/// `needed` name it (more where the signature lies below the band the floor `noise` was
+/// measured on and that floor is 1/f: [`NoiseModel::low_band_inflation`]). `None` where the
+/// candidate cannot be simulated there or adds nothing visible (a signature the nominal
+/// model takes up whole, or none at all).
 ///
 /// A size solved in closed form (a drag's coefficient) acts linearly: its screened signature,
 /// scaled, is the answer. A size fitted through the twin (a delay) is set and the signature
@@ -148,7 +154,7 @@ pub fn detection_limit(
     spec: &ModelSpec,
     theta: &[f64],
     needed: Needed,
-    floor_sigma_v: f64,
+    noise: &NoiseModel,
 ) -> Option<DetectionLimit> {
     let effect = *spec.effects.last()?;
     // The nominal part is the nominal fit's: a screening start may have moved it (a delay's
@@ -160,7 +166,7 @@ pub fn detection_limit(
     let theta: Vec<f64> = nom.theta.iter().chain(&theta[n_nom..]).copied().collect();
     let at = |th: &[f64]| -> Option<(f64, DetectionLimit, f64, &'static str, String)> {
         let cand = problem.evaluate(spec, th)?;
-        let (scale, limit) = signature_limit(problem, nom, &cand, tangent, needed, floor_sigma_v)?;
+        let (scale, limit) = signature_limit(problem, nom, &cand, tangent, needed, noise)?;
         let sizes = problem.effect_params(spec, th, &[], &cand.linear, &cand.linear_sd, effect);
         let [(name, unit, value, _)] = &sizes[..] else {
             return None;
@@ -225,7 +231,7 @@ fn signature_limit(
     cand: &super::model::Evaluation,
     tangent: &DMatrix<f64>,
     needed: Needed,
-    floor_sigma_v: f64,
+    noise: &NoiseModel,
 ) -> Option<(f64, DetectionLimit)> {
     // residual = recorded − simulation − Σ coefficient·column, the offset's column ones:
     // the candidate's addition with the nominal offset held is the residuals' difference
@@ -248,7 +254,24 @@ fn signature_limit(
         .iter()
         .map(|&i| (white[i] / problem.sigma_w_v).powi(2))
         .sum();
-    limit_of(&d_raw, &d_w, held_energy, tangent, needed, floor_sigma_v)
+    // A signature below the band the floor was measured on must beat the floor's 1/f noise
+    // continued there, as the judgement of a refit does (`low_band_inflation` in the parent).
+    let inflation = match problem.weighting() {
+        super::Weighting::Whitened => noise.low_band_inflation(problem.fs_hz, &white),
+        super::Weighting::Equal => 1.0,
+    };
+    let needed = Needed {
+        train: needed.train * inflation,
+        held: needed.held * inflation,
+    };
+    let (scale, limit) = limit_of(&d_raw, &d_w, held_energy, tangent, needed, noise.sigma_v)?;
+    Some((
+        scale,
+        DetectionLimit {
+            floor_inflation: inflation,
+            ..limit
+        },
+    ))
 }
 
 /// [`detection_limit`] from the signature itself: raw (V, every sample), whitened on the
@@ -288,6 +311,7 @@ fn limit_of(
             rms_v,
             over_floor: rms_v / floor_sigma_v,
             absorbed: 1.0 - visible / energy,
+            floor_inflation: 1.0,
         },
     ))
 }

@@ -334,8 +334,18 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
     }
     for e in d.effects.iter().filter(|e| !e.significant) {
         if let Some(l) = &e.detection_limit {
+            // A 1/f floor continued below its measured band raises what a slow signature
+            // must beat: the report says by how much, as the limit's reason.
+            let inflation = if l.floor_inflation > 1.01 {
+                format!(
+                    "; {:.1}× the drops, for the floor's 1/f noise below the band it was measured on",
+                    l.floor_inflation
+                )
+            } else {
+                String::new()
+            };
             println!(
-                "  would be named from: {} ({}) of {} (a signature of {:.3} mV rms, {:.2} σ of the floor, of which the nominal fit takes up {}; from the deflection alone)",
+                "  would be named from: {} ({}) of {} (a signature of {:.3} mV rms, {:.2} σ of the floor, of which the nominal fit takes up {}; from the deflection alone{inflation})",
                 e.id,
                 l.param,
                 size_text(l.value, l.unit),
