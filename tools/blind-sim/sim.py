@@ -745,6 +745,26 @@ def case_table():
         add([], fs=20000, drive="v", ref=True, exc="multisine")
         add([], fs=10000, drive="v", ref=True, tip="cone", exc="step")
         add([], fs=8000, drive="v", ref=True, exc="multisine", pink=0.5)
+    # SIM_CASES=nulls (added by viscoprobe, not by the author): sixteen nulls over the make-ups
+    # of the default set, half of them with 1/f noise up to 3× the white noise (the default
+    # set's nulls go to 2×): a false-positive control beyond the default set's four nulls.
+    if os.environ.get("SIM_CASES") == "nulls":
+        C.clear()
+        for k, (fs, drive, tip, exc) in enumerate([
+            (5000, "v", "sphere", "multisine"), (8000, "nm", "sphere", "step"),
+            (10000, "v", "cone", "multisine"), (16000, "nm", "cone", "multisine"),
+            (20000, "v", "sphere", "step"), (8000, "v", "cone", "step"),
+            (10000, "nm", "sphere", "multisine"), (5000, "nm", "cone", "step"),
+        ]):
+            for pink in (0.0, (1.0, 2.0, 3.0)[k % 3]):
+                kw = dict(fs=fs, drive=drive, tip=tip, exc=exc)
+                if pink:
+                    kw["pink"] = pink
+                if k % 4 == 1:
+                    kw["ref"] = True
+                if k % 4 == 3:
+                    kw["height"] = True
+                add([], **kw)
     return C
 
 
