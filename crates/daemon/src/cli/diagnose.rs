@@ -103,6 +103,7 @@ pub fn diagnosis_json(file: &str, d: &Diagnosis, seconds: f64) -> Value {
                 "rms_v": l.rms_v,
                 "over_floor": l.over_floor,
                 "absorbed": l.absorbed,
+                "floor_inflation": l.floor_inflation,
             })),
             "description": e.description,
             "params": e.params.iter().map(|p| (p.name.clone(), json!({
