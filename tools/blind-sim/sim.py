@@ -745,6 +745,19 @@ def case_table():
         add([], fs=20000, drive="v", ref=True, exc="multisine")
         add([], fs=10000, drive="v", ref=True, tip="cone", exc="step")
         add([], fs=8000, drive="v", ref=True, exc="multisine", pink=0.5)
+    # SIM_CASES=slow (added by viscoprobe, not by the author): eight slow effects (drift,
+    # creep, a slow fourth retardation time) under 1/f noise at 1-3 times the white level
+    # (x 0.8-1.5 as drawn): what the false-positive guard against 1/f noise costs.
+    if os.environ.get("SIM_CASES") == "slow":
+        C.clear()
+        add(["thermal_drift"], fs=8000, drive="v", exc="multisine", pink=1.0)
+        add(["thermal_drift"], fs=20000, drive="v", exc="step", pink=2.0)
+        add(["thermal_drift"], fs=5000, drive="nm", exc="step", pink=1.0)
+        add(["piezo_creep"], fs=10000, drive="v", exc="multisine", pink=2.0)
+        add(["piezo_creep"], fs=20000, drive="v", exc="step", pink=1.0)
+        add(["missing_relaxation"], fs=8000, drive="v", exc="step", mr_kind="slow", pink=2.0)
+        add(["thermal_drift"], fs=10000, drive="v", exc="step", pink=3.0)
+        add(["missing_relaxation"], fs=20000, drive="nm", exc="multisine", mr_kind="slow", pink=1.0)
     # SIM_CASES=nulls (added by viscoprobe, not by the author): sixteen nulls over the make-ups
     # of the default set, half of them with 1/f noise up to 3× the white noise (the default
     # set's nulls go to 2×): a false-positive control beyond the default set's four nulls.
