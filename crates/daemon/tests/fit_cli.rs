@@ -254,6 +254,63 @@ fn fit_json_documented_keys_and_truth() {
     }
 }
 
+/// `viscoprobe diagnose --json` on a recording of the deflection alone draws detection limits,
+/// with the keys of docs/diagnose-json.md: the size parameter (name, unit, value), the
+/// signature's rms against the floor, the share the nominal fit takes up, and the floor's 1/f
+/// inflation (1 on this white floor).
+#[test]
+fn deflection_only_diagnose_json_draws_detection_limits() {
+    let dir = scratch("diagnose-limits");
+    let csv = creep_recording(&dir);
+    // The twin writes a hard reference beside the deflection, whose evidence would name a
+    // smaller effect than any limit: the recording without it.
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let header: Vec<&str> = text.lines().next().unwrap().split(',').collect();
+    let drop = header
+        .iter()
+        .position(|c| *c == "reference_deflection_v")
+        .expect("the twin's recording has a reference column");
+    let alone: String = text
+        .lines()
+        .map(|l| {
+            let kept: Vec<&str> = l
+                .split(',')
+                .enumerate()
+                .filter(|(i, _)| *i != drop)
+                .map(|(_, c)| c)
+                .collect();
+            kept.join(",") + "\n"
+        })
+        .collect();
+    let csv = dir.join("deflection-only.csv");
+    std::fs::write(&csv, alone).unwrap();
+    std::fs::copy(dir.join("creep.toml"), dir.join("deflection-only.toml")).unwrap();
+    let v = json_of(&viscoprobe(&["diagnose", csv.to_str().unwrap(), "--json"]));
+    let limits: Vec<(&str, &serde_json::Value)> = v["effects"]
+        .as_array()
+        .expect("effects[]")
+        .iter()
+        .filter(|e| !e["detection_limit"].is_null())
+        .map(|e| (e["id"].as_str().unwrap(), &e["detection_limit"]))
+        .collect();
+    let ids: Vec<&str> = limits.iter().map(|l| l.0).collect();
+    assert!(ids.contains(&"channel_delay"), "{ids:?}");
+    for (id, l) in &limits {
+        let name = l["param"]["name"].as_str().expect("param.name");
+        assert!(l["param"]["unit"].is_string(), "{id}: {l}");
+        let value = finite(l, "param.value");
+        let over = finite(l, "over_floor");
+        let rms = finite(l, "rms_v");
+        let absorbed = finite(l, "absorbed");
+        let inflation = finite(l, "floor_inflation");
+        assert!(value > 0.0 && rms > 0.0 && over > 0.0, "{id} ({name}): {l}");
+        assert!((0.0..1.0).contains(&absorbed), "{id}: {l}");
+        assert_eq!(inflation, 1.0, "{id}: a white floor asks nothing more: {l}");
+    }
+    let delay = limits.iter().find(|l| l.0 == "channel_delay").unwrap().1;
+    assert_eq!(delay["param"]["name"], "delay_s");
+}
+
 // ---- malformed input ------------------------------------------------------------------------
 
 /// `args` fails with a message naming `file` and containing every one of `what` (any case),
