@@ -256,10 +256,7 @@ fn signature_limit(
         .sum();
     // A signature below the band the floor was measured on must beat the floor's 1/f noise
     // continued there, as the judgement of a refit does (`low_band_inflation` in the parent).
-    let inflation = match problem.weighting() {
-        super::Weighting::Whitened => noise.low_band_inflation(problem.fs_hz, &white),
-        super::Weighting::Equal => 1.0,
-    };
+    let inflation = super::low_band_inflation(problem, noise, &white);
     let needed = Needed {
         train: needed.train * inflation,
         held: needed.held * inflation,

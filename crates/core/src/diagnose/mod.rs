@@ -1551,7 +1551,11 @@ pub fn diagnose_with(
                 // The deflection's part of the drops, judged again against the floor's 1/f
                 // noise continued below the band it was measured on (the channels beside
                 // the deflection have floors of their own).
-                let g = low_band_inflation(&problem, &noise, base, cand);
+                let explained: Vec<f64> = (base.eval.residual_v.iter())
+                    .zip(&cand.eval.residual_v)
+                    .map(|(b, c)| b - c)
+                    .collect();
+                let g = low_band_inflation(&problem, &noise, &problem.whiten(&explained));
                 let deflection_train = base.eval.chi2_train - cand.eval.chi2_train;
                 let deflection_held = base.eval.chi2_held - cand.eval.chi2_held;
                 (g > 1.0
@@ -2581,22 +2585,16 @@ fn drag_along_motion(problem: &Problem, f: &Fitted) -> bool {
             .any(|p| p.ci95[1] < 0.0)
 }
 
-/// How many times the floor's noise exceeds what the whitening assumes along what `cand`
-/// explains beyond `base` (the change of the deflection's residual), once the floor's 1/f
-/// rise is continued below the band it was measured on ([`NoiseModel::low_band_inflation`]).
-/// 1 for a recording weighted equally: its weights assume no floor shape to continue.
-fn low_band_inflation(problem: &Problem, noise: &NoiseModel, base: &Fitted, cand: &Fitted) -> f64 {
-    if problem.weighting() != Weighting::Whitened {
-        return 1.0;
+/// How many times the floor's noise exceeds what the whitening assumes along the whitened
+/// signature `whitened` (a refit's change of the deflection's residual, a limit's
+/// signature), once the floor's 1/f rise is continued below the band it was measured on
+/// ([`NoiseModel::low_band_inflation`]). 1 for a recording weighted equally: its weights
+/// assume no floor shape to continue. The judgement and the detection limits both ask it.
+pub(super) fn low_band_inflation(problem: &Problem, noise: &NoiseModel, whitened: &[f64]) -> f64 {
+    match problem.weighting() {
+        Weighting::Whitened => noise.low_band_inflation(problem.fs_hz, whitened),
+        Weighting::Equal => 1.0,
     }
-    let explained: Vec<f64> = base
-        .eval
-        .residual_v
-        .iter()
-        .zip(&cand.eval.residual_v)
-        .map(|(b, c)| b - c)
-        .collect();
-    noise.low_band_inflation(problem.fs_hz, &problem.whiten(&explained))
 }
 
 /// What the report says of a candidate refused for the floor's 1/f noise below its band.

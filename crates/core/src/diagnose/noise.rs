@@ -224,17 +224,12 @@ impl NoiseModel {
     /// with a held-out drop of 150 (2026-11-28). 1 when the floor does not rise at its
     /// bottom ([`Self::rises_at_low_frequency`]): a white floor changes nothing.
     pub fn low_band_inflation(&self, fs_hz: f64, signature_w: &[f64]) -> f64 {
-        use rustfft::{num_complex::Complex64, FftPlanner};
         let n = signature_w.len();
         if n < 4 || !self.rises_at_low_frequency(fs_hz) {
             return 1.0;
         }
         let low = self.lowest_measured_hz(fs_hz);
-        let mut buf: Vec<Complex64> = signature_w
-            .iter()
-            .map(|&x| Complex64::new(x, 0.0))
-            .collect();
-        FftPlanner::new().plan_fft_forward(n).process(&mut buf);
+        let buf = crate::miic::spectrum(signature_w);
         let bin_hz = fs_hz / n as f64;
         let (mut weighted, mut total) = (0.0, 0.0);
         for (k, c) in buf.iter().enumerate().take(n / 2 + 1) {
