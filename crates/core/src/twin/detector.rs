@@ -15,7 +15,8 @@ pub struct DetectorConfig {
     /// White noise, V rms per sample.
     #[serde(default)]
     pub white_noise_v: f64,
-    /// 1/f (pink) noise, V rms over the simulated band (from fs/2 down ~10 octaves).
+    /// 1/f (pink) noise, V rms over the simulated band (from fs/2 down to 0.01 Hz, so that
+    /// it goes on rising over the slowest wander a record holds, as a detector's does).
     #[serde(default)]
     pub pink_noise_v: f64,
     /// Linear drift of the deflection signal, V/s.
@@ -52,7 +53,17 @@ pub struct Mains {
     pub third_harmonic_v: f64,
 }
 
-const PINK_OCTAVES: usize = 10;
+/// The lowest corner of the 1/f noise's octaves, Hz. Ten octaves below fs/4 were simulated
+/// until 2026-11-29: flat below fs/2048 (2 Hz at 4 kHz), while an independent simulator's
+/// 1/f, and a real detector's, keeps rising to the record's own length, where it is what
+/// tempts a diagnosis to name a slow drift (`diagnose::noise::NoiseModel::low_band_inflation`).
+/// This twin's 1/f nulls never showed that.
+const PINK_LOWEST_HZ: f64 = 0.01;
+
+/// Octaves of 1/f noise from fs/4 down to [`PINK_LOWEST_HZ`].
+fn pink_octaves(fs_hz: f64) -> usize {
+    ((fs_hz / 4.0 / PINK_LOWEST_HZ).log2().ceil().max(1.0)) as usize
+}
 
 /// Detector state.
 #[derive(Debug, Clone)]
@@ -74,11 +85,12 @@ pub struct Detector {
 impl Detector {
     pub fn new(cfg: &DetectorConfig, fs_hz: f64, seed: u64) -> Self {
         // Octave-spaced AR(1) processes with equal variance sum to ≈1/f between the corners.
-        let pink = (0..PINK_OCTAVES)
+        let octaves = pink_octaves(fs_hz);
+        let pink = (0..octaves)
             .map(|i| {
                 let fc = fs_hz / 4.0 / 2f64.powi(i as i32);
                 let a = (-2.0 * std::f64::consts::PI * fc / fs_hz).exp();
-                let gain = (1.0 - a * a).sqrt() / (PINK_OCTAVES as f64).sqrt();
+                let gain = (1.0 - a * a).sqrt() / (octaves as f64).sqrt();
                 (a, gain, 0.0)
             })
             .collect();
@@ -94,6 +106,21 @@ impl Detector {
             sample: 0,
             ideal: *cfg == DetectorConfig::default(),
         }
+        .with_stationary_pink()
+    }
+
+    /// Starts each octave of the 1/f noise from its stationary spread (variance 1/octaves),
+    /// not from rest: the slowest octaves take minutes to settle, and started at zero a
+    /// record would hold none of their wander. Without 1/f noise nothing is drawn, so the
+    /// white noise's sequence is the same as before there was any.
+    fn with_stationary_pink(mut self) -> Self {
+        if self.cfg.pink_noise_v > 0.0 {
+            let spread = (1.0 / self.pink.len() as f64).sqrt();
+            for k in 0..self.pink.len() {
+                self.pink[k].2 = spread * self.gauss();
+            }
+        }
+        self
     }
 
     /// Pre-fills the delay line with a constant clean value (an instrument at rest).
@@ -295,5 +322,32 @@ mod tests {
         let c1 =
             y.windows(2).map(|w| w[0] * w[1]).sum::<f64>() / y.iter().map(|v| v * v).sum::<f64>();
         assert!(c1 > 0.5, "lag-1 correlation {c1}");
+    }
+    /// 1/f noise keeps its Allan variance from a fraction of a second to many seconds, as
+    /// flicker noise does, rather than averaging away as white noise would below a corner:
+    /// the octaves reach down to 0.01 Hz. With ten octaves below fs/4 (the twin until
+    /// 2026-11-29, flat below 0.5 Hz at 1 kHz) the ratio below was 0.17; it is 0.83.
+    #[test]
+    fn pink_noise_wanders_as_one_over_f_down_to_the_slowest_seconds() {
+        let cfg = DetectorConfig {
+            pink_noise_v: 1.0,
+            ..Default::default()
+        };
+        let fs = 1000.0;
+        let mut d = Detector::new(&cfg, fs, 3);
+        let y: Vec<f64> = (0..1_000_000).map(|_| d.step(0.0)).collect();
+        let allan = |block: usize| {
+            let means: Vec<f64> = y
+                .chunks_exact(block)
+                .map(|c| c.iter().sum::<f64>() / block as f64)
+                .collect();
+            let diffs: Vec<f64> = means.windows(2).map(|w| (w[1] - w[0]).powi(2)).collect();
+            0.5 * diffs.iter().sum::<f64>() / diffs.len() as f64
+        };
+        let ratio = allan(8000) / allan(500);
+        assert!(
+            (0.5..2.0).contains(&ratio),
+            "Allan variance 8 s / 0.5 s: {ratio}"
+        );
     }
 }
