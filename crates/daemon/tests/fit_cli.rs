@@ -264,27 +264,17 @@ fn deflection_only_diagnose_json_draws_detection_limits() {
     let csv = creep_recording(&dir);
     // The twin writes a hard reference beside the deflection, whose evidence would name a
     // smaller effect than any limit: the recording without it.
-    let text = std::fs::read_to_string(&csv).unwrap();
-    let header: Vec<&str> = text.lines().next().unwrap().split(',').collect();
-    let drop = header
-        .iter()
-        .position(|c| *c == "reference_deflection_v")
-        .expect("the twin's recording has a reference column");
-    let alone: String = text
-        .lines()
-        .map(|l| {
-            let kept: Vec<&str> = l
-                .split(',')
-                .enumerate()
-                .filter(|(i, _)| *i != drop)
-                .map(|(_, c)| c)
-                .collect();
-            kept.join(",") + "\n"
-        })
-        .collect();
+    let mut rec = Recording::read(
+        std::fs::File::open(&csv).unwrap(),
+        std::fs::File::open(csv.with_extension("toml")).unwrap(),
+    )
+    .unwrap();
+    assert!(
+        rec.reference_deflection_v.take().is_some(),
+        "the twin's recording has a reference column"
+    );
     let csv = dir.join("deflection-only.csv");
-    std::fs::write(&csv, alone).unwrap();
-    std::fs::copy(dir.join("creep.toml"), dir.join("deflection-only.toml")).unwrap();
+    write_atomic(&csv, &csv.with_extension("toml"), &rec).unwrap();
     let v = json_of(&viscoprobe(&["diagnose", csv.to_str().unwrap(), "--json"]));
     let limits: Vec<(&str, &serde_json::Value)> = v["effects"]
         .as_array()

@@ -466,6 +466,7 @@ mod tests {
             None
         );
     }
+
     /// Densely excited low lines under a residual whose own level rises towards low
     /// frequency (1/f noise the floor's measurement missed) are judged against the
     /// residual's level beside them, not against the floor: noise alone is not located
@@ -501,8 +502,8 @@ mod tests {
         assert!(!noise_only.significant, "{noise_only:?}");
         // The same residual against the floor alone was located: its dense lines sit at
         // several floors (the statistic's old form, kept here as the witness).
-        let spectra = spectra(&pink, &drive, (0, n), fs).unwrap();
-        let dense: Vec<f64> = (30..=60).map(|k| spectra.pe[k]).collect();
+        let against_floor = spectra(&pink, &drive, (0, n), fs).unwrap();
+        let dense: Vec<f64> = (30..=60).map(|k| against_floor.pe[k]).collect();
         let m = dense.len() as f64;
         let old_z = (dense.iter().sum::<f64>() - m) / m.sqrt();
         assert!(old_z > 2.0 * Z_SIGNIFICANT, "{old_z}");

@@ -305,17 +305,21 @@ mod tests {
         assert_eq!(d.step(5.0), 1.0);
     }
 
-    /// Pink noise carries more power per octave... equal power per octave, so the
-    /// low band (below fs/64) has far more power per hertz than the high band.
-    #[test]
-    fn pink_noise_is_red() {
+    /// `n` samples at 1 kHz of a detector with 1/f noise of 1 V rms and nothing else.
+    fn pink_only(seed: u64, n: usize) -> Vec<f64> {
         let cfg = DetectorConfig {
             pink_noise_v: 1.0,
             ..Default::default()
         };
-        let fs = 1000.0;
-        let mut d = Detector::new(&cfg, fs, 9);
-        let y: Vec<f64> = (0..100_000).map(|_| d.step(0.0)).collect();
+        let mut d = Detector::new(&cfg, 1000.0, seed);
+        (0..n).map(|_| d.step(0.0)).collect()
+    }
+
+    /// Pink noise carries more power per octave... equal power per octave, so the
+    /// low band (below fs/64) has far more power per hertz than the high band.
+    #[test]
+    fn pink_noise_is_red() {
+        let y = pink_only(9, 100_000);
         let rms = (y.iter().map(|v| v * v).sum::<f64>() / y.len() as f64).sqrt();
         assert!((rms - 1.0).abs() < 0.15, "rms {rms}");
         // Lag-1 correlation of 1/f noise is high; of white noise ≈ 0.
@@ -323,19 +327,14 @@ mod tests {
             y.windows(2).map(|w| w[0] * w[1]).sum::<f64>() / y.iter().map(|v| v * v).sum::<f64>();
         assert!(c1 > 0.5, "lag-1 correlation {c1}");
     }
+
     /// 1/f noise keeps its Allan variance from a fraction of a second to many seconds, as
     /// flicker noise does, rather than averaging away as white noise would below a corner:
     /// the octaves reach down to 0.01 Hz. With ten octaves below fs/4 (the twin until
     /// 2026-11-29, flat below 0.5 Hz at 1 kHz) the ratio below was 0.17; it is 0.83.
     #[test]
     fn pink_noise_wanders_as_one_over_f_down_to_the_slowest_seconds() {
-        let cfg = DetectorConfig {
-            pink_noise_v: 1.0,
-            ..Default::default()
-        };
-        let fs = 1000.0;
-        let mut d = Detector::new(&cfg, fs, 3);
-        let y: Vec<f64> = (0..1_000_000).map(|_| d.step(0.0)).collect();
+        let y = pink_only(3, 1_000_000);
         let allan = |block: usize| {
             let means: Vec<f64> = y
                 .chunks_exact(block)
