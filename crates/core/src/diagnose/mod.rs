@@ -857,6 +857,7 @@ pub fn diagnose_with(
         held,
         mains_hz: pick_mains(&y[..free_end.max(2)], fs),
         floor_from_hz: 3.0 * fs / noise.samples.max(1) as f64,
+        floor_rises_at_bottom: noise.rises_at_low_frequency(fs),
         fixed_columns: Default::default(),
         drive_spectrum: Default::default(),
         simulations: Default::default(),
@@ -1923,7 +1924,10 @@ fn whitened(problem: &Problem, f: &Fitted) -> Vec<f64> {
 
 fn locations(problem: &Problem, e: &[f64], phases: &[Phase]) -> Vec<Location> {
     let fs = problem.fs_hz;
-    let mut out = locate::in_time(e, phases, fs);
+    let slow = problem
+        .floor_rises_at_bottom
+        .then_some(problem.floor_from_hz);
+    let mut out = locate::in_time(e, phases, fs, slow);
     let window = phases
         .iter()
         .find(|p| p.name == "excitation")

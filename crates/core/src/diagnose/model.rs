@@ -929,6 +929,10 @@ pub struct Problem {
     pub mains_hz: f64,
     /// Lowest frequency at which the noise floor was measured, Hz.
     pub floor_from_hz: f64,
+    /// Whether that floor rises at its bottom as 1/f noise does
+    /// (`NoiseModel::rises_at_low_frequency`): then it vouches for nothing below
+    /// `floor_from_hz`, and the long phases are located above it (`locate::in_time`).
+    pub floor_rises_at_bottom: bool,
     /// Offset, time and mains columns, and their normal equations (see `fixed_columns`);
     /// leave empty.
     pub fixed_columns: std::sync::OnceLock<FixedColumns>,
@@ -1847,6 +1851,7 @@ pub(crate) fn test_problem(
         held,
         mains_hz: 50.0,
         floor_from_hz: 1.0,
+        floor_rises_at_bottom: false,
         fixed_columns: Default::default(),
         drive_spectrum: Default::default(),
         simulations: Default::default(),
