@@ -1237,6 +1237,16 @@ pub fn diagnose_with(
         }
         // The refits are independent too. Each form of a candidate (`ModelSpec::variants`) is
         // fitted; the one with the lower BIC stands for the candidate (`bic`).
+        //
+        // Where their simulations go, measured (2026-11-29, the concealed corpus's seed 1, 21
+        // cases, 146 614 simulations, 60 % of them refits): 28 556 (19 %) on forms that lost
+        // to another form of their own candidate, and 37 403 (26 %) on candidates whose best
+        // form ended above twice the train χ² of the best refit (the adhesion + blunt tip
+        // pair: 5485 of its 14 048). That is the room for a faster diagnosis; the twin's step
+        // itself has little left. Taking it without moving a name would need fits that are
+        // raced a few iterations at a time and resumed exactly where they paused, so that
+        // the fits that go on follow the path they follow now.
+        //
         // The plain form of each candidate whose best form is another one: a pair may want the
         // plain form where the single effect's best form was mimicking its partner (a long
         // adhesive neck standing in for a drift).
