@@ -492,16 +492,16 @@ mod tests {
     use rand_distr::{Distribution, StandardNormal};
 
     /// Below a floor that rises as 1/f, the long phases are judged above the floor's lowest
-    /// frequency, the events on the whole residual: a slow wander below it, several times the floor's power, leaves the long
-    /// phases at the floor (the whole residual's χ² puts them at z 48–118), a 100 Hz
-    /// misfit in the hold stands out at its own size, and a pull-off's offset is counted
-    /// whole.
+    /// frequency, the events on the whole residual: a slow wander below it, 1.6 times the
+    /// floor's power, leaves the long phases at the floor (the whole residual's χ² puts them
+    /// at z 48–118), a 100 Hz misfit in the hold stands out at its own size, and the
+    /// pull-off's window is judged whole.
     #[test]
     fn long_phases_are_judged_above_the_floors_lowest_frequency() {
         let (fs, n, f_min) = (4000.0, 20_000, 4.0);
         let mut rng = StdRng::seed_from_u64(11);
         let tone = |f: f64, k: usize| (2.0 * std::f64::consts::PI * f * k as f64 / fs).sin();
-        // Wander at 0.5–3 Hz (below f_min), 1.5 floors rms in all.
+        // Wander at 0.5–3 Hz (below f_min), 1.27 floors rms in all.
         let wander = |k: usize| 1.2 * tone(0.5, k) + 0.9 * tone(1.3, k + 97) + 1.0 * tone(3.0, k);
         let mut e: Vec<f64> = (0..n)
             .map(|k| {
