@@ -4651,6 +4651,73 @@ mod tests {
         assert!(!sensor_parts_from_command(&[], &[]));
     }
 
+    /// `locations` passes the problem's floor to the time phases: under a floor that rises
+    /// at its bottom the long phases are judged above `floor_from_hz`, under a white one on
+    /// the whole residual. A residual of slow wander below that frequency (1.27 floors rms)
+    /// on a unit floor tells the two apart: above the band the long phases are at the floor,
+    /// judged whole they read far beyond the threshold. The events are judged whole either
+    /// way, as is everything outside the time domain.
+    #[test]
+    fn locations_follow_the_problems_floor_into_the_time_phases() {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, StandardNormal};
+        let (fs, n) = (FS_HZ, 20_000);
+        let tone = |f: f64, k: usize| (2.0 * std::f64::consts::PI * f * k as f64 / fs).sin();
+        let mut rng = rand::rngs::StdRng::seed_from_u64(13);
+        let e: Vec<f64> = (0..n)
+            .map(|k| {
+                let white: f64 = StandardNormal.sample(&mut rng);
+                white + 1.2 * tone(0.5, k) + 0.9 * tone(1.3, k + 97) + 1.0 * tone(3.0, k)
+            })
+            .collect();
+        let drive: Vec<f64> = (0..n).map(|k| tone(37.0, k) + tone(211.0, k)).collect();
+        let mut problem = super::model::test_problem(
+            &nominal_twin(1),
+            fs,
+            drive,
+            vec![0.0; n],
+            (0..n).partition(|k| (k / 100) % 3 != 1),
+            vec![1.0],
+        );
+        problem.floor_from_hz = 4.0;
+        let phase = |name, start, end| locate::Phase { name, start, end };
+        let phases = [
+            phase("approach", 0, 4000),
+            phase("excitation", 4000, 12_000),
+            phase("hold", 12_000, 16_000),
+            phase("retract", 16_000, 20_000),
+            phase("pull_off", 17_000, 17_400),
+        ];
+        let z = |locations: &[Location], name: &str| {
+            locations
+                .iter()
+                .find(|l| l.domain == "time" && l.name == name)
+                .map(|l| l.z)
+                .unwrap_or_else(|| panic!("no {name} in {locations:?}"))
+        };
+        problem.floor_rises_at_bottom = true;
+        let rising = super::locations(&problem, &e, &phases);
+        problem.floor_rises_at_bottom = false;
+        let white = super::locations(&problem, &e, &phases);
+        for name in ["approach", "excitation", "hold", "retract"] {
+            assert!(
+                z(&rising, name).abs() < 4.0,
+                "{name}: z {}",
+                z(&rising, name)
+            );
+            assert!(z(&white, name) > 40.0, "{name}: z {}", z(&white, name));
+        }
+        assert_eq!(z(&rising, "pull_off"), z(&white, "pull_off"));
+        let outside_time = |l: &[Location]| -> Vec<(String, f64)> {
+            l.iter()
+                .filter(|l| l.domain != "time")
+                .map(|l| (l.name.clone(), l.z))
+                .collect()
+        };
+        assert!(!outside_time(&white).is_empty());
+        assert_eq!(outside_time(&rising), outside_time(&white));
+    }
+
     /// A third held out, a held block starting at the anchor, and around each event every
     /// third sample held, so an event of a few samples lands on both sides.
     #[test]
