@@ -15,7 +15,8 @@ use viscoprobe_core::diagnose::bench::{score, CaseOutcome, Score};
 use viscoprobe_core::diagnose::corpus::{concealed_corpus_with, CorpusCase, MATERIAL_TERMS};
 use viscoprobe_core::diagnose::model::{DEFAULT_NOMINAL_TERMS, MAX_NOMINAL_TERMS};
 use viscoprobe_core::diagnose::{
-    diagnose_with, BasePosition, DiagnoseOptions, Diagnosis, FitSummary, Param, Weighting,
+    diagnose_observed, diagnose_with, BasePosition, DiagnoseOptions, Diagnosis, FitSummary, Param,
+    Progress, Weighting,
 };
 use viscoprobe_core::prony::{PronySeries, PronyTerm};
 
@@ -189,7 +190,18 @@ pub fn run(args: DiagnoseArgs) -> anyhow::Result<()> {
         nominal_terms: args.prony_terms,
         ..DiagnoseOptions::default()
     };
-    let d = diagnose_with(&rec, &opts, &fan)
+    // Progress on stderr as each stage ends, unless the output is JSON.
+    let show = |p: Progress| {
+        if !args.json {
+            eprintln!(
+                "  {} ({} simulations, {:.1} s)",
+                progress_line(&p),
+                p.simulations(),
+                started.elapsed().as_secs_f64()
+            );
+        }
+    };
+    let d = diagnose_observed(&rec, &opts, &fan, &show)
         .with_context(|| format!("diagnosing {}", args.recording.display()))?;
     let seconds = started.elapsed().as_secs_f64();
     if let Some(dir) = &args.plot {
@@ -207,6 +219,49 @@ pub fn run(args: DiagnoseArgs) -> anyhow::Result<()> {
     }
     print_report(&file, &d, seconds);
     Ok(())
+}
+
+/// One stage of a diagnosis in words, for the progress shown on stderr.
+fn progress_line(p: &Progress) -> String {
+    match p {
+        Progress::NominalFitted {
+            chi2_per_sample, ..
+        } => format!(
+            "nominal twin fitted: χ² {chi2_per_sample:.3} per train sample, where the noise floor gives 1"
+        ),
+        Progress::Screened {
+            round,
+            candidates,
+            refits,
+            ..
+        } => {
+            let against = if *round == 0 {
+                "the nominal twin"
+            } else {
+                "a better nominal twin the refits found"
+            };
+            format!(
+                "{candidates} candidates screened against {against}; refitting {}: {}",
+                refits.len(),
+                refits.join(", ")
+            )
+        }
+        Progress::Refitted {
+            id,
+            chi2_per_sample,
+            ..
+        } => format!("refitted {id}: χ² {chi2_per_sample:.3} per train sample"),
+        Progress::Judged { significant, .. } => {
+            if significant.is_empty() {
+                "refits judged: none beats the nominal twin".to_string()
+            } else {
+                format!(
+                    "refits judged: {} beat the nominal twin on their own (strongest first); pairs next",
+                    significant.join(", ")
+                )
+            }
+        }
+    }
 }
 
 fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
@@ -954,6 +1009,51 @@ pub fn run_bench(args: BenchArgs) -> anyhow::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Each stage of a diagnosis reads as a line with its numbers and names; the second
+    /// round says why it came, and a judgement with nothing significant says so.
+    #[test]
+    fn progress_lines_name_each_stage() {
+        let nominal = progress_line(&Progress::NominalFitted {
+            chi2_per_sample: 2.5691,
+            simulations: 2188,
+        });
+        assert_eq!(
+            nominal,
+            "nominal twin fitted: χ² 2.569 per train sample, where the noise floor gives 1"
+        );
+        let screened = |round| {
+            progress_line(&Progress::Screened {
+                round,
+                candidates: 12,
+                refits: vec!["substrate_effect", "tip_geometry"],
+                simulations: 2865,
+            })
+        };
+        assert_eq!(
+            screened(0),
+            "12 candidates screened against the nominal twin; refitting 2: substrate_effect, tip_geometry"
+        );
+        assert!(screened(1).contains("a better nominal twin the refits found"));
+        let refitted = progress_line(&Progress::Refitted {
+            round: 0,
+            id: "piezo_creep",
+            chi2_per_sample: 1.2604,
+            simulations: 7185,
+        });
+        assert_eq!(refitted, "refitted piezo_creep: χ² 1.260 per train sample");
+        let judged = |significant: Vec<&'static str>| {
+            progress_line(&Progress::Judged {
+                significant,
+                simulations: 10411,
+            })
+        };
+        assert_eq!(
+            judged(vec!["adhesion", "tip_geometry"]),
+            "refits judged: adhesion, tip_geometry beat the nominal twin on their own (strongest first); pairs next"
+        );
+        assert_eq!(judged(vec![]), "refits judged: none beats the nominal twin");
+    }
 
     /// Retardation times print in ms down to 0.1 ms and in µs below, never as "0.000 ms".
     #[test]
