@@ -749,7 +749,8 @@ pub enum Progress {
         refits: Vec<&'static str>,
         simulations: usize,
     },
-    /// One candidate's full refit ended: its best form's χ² per train sample.
+    /// One candidate's full refit ended: its best form's χ² per train sample. A candidate
+    /// none of whose forms could be fitted (no start gave a physical twin) ends without one.
     Refitted {
         round: usize,
         id: &'static str,
