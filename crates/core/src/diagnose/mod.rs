@@ -499,8 +499,6 @@ struct Examined {
     screened: Vec<(Effect, f64, Vec<f64>)>,
     /// Each screened candidate's detection limit against this nominal fit.
     limits: Vec<(Effect, Option<DetectionLimit>)>,
-    /// Indices into `screened` of the candidates refitted.
-    to_refit: Vec<usize>,
     /// The refitted candidates, each in its best form.
     singles: Vec<(Effect, Fitted)>,
     /// The plain form of each candidate whose best form is another one.
@@ -1423,7 +1421,6 @@ pub fn diagnose_observed(
             locations_before,
             screened,
             limits,
-            to_refit,
             singles,
             plain_forms,
             sims_screen,
@@ -1506,9 +1503,8 @@ pub fn diagnose_observed(
             Some(_) => {}
             None => now.push((e, f)),
         };
-        for (e, f) in again.singles {
-            mark_for_refit(&ex.screened, &mut ex.to_refit, e);
-            keep_better(&mut ex.singles, (e, f));
+        for ef in again.singles {
+            keep_better(&mut ex.singles, ef);
         }
         for ef in again.plain_forms {
             keep_better(&mut ex.plain_forms, ef);
@@ -1519,7 +1515,6 @@ pub fn diagnose_observed(
         locations_before,
         screened,
         limits,
-        to_refit,
         singles,
         plain_forms,
         sims_screen,
@@ -1709,11 +1704,8 @@ pub fn diagnose_observed(
             description: e.describe(),
         });
     }
-    for (_, (e, d, _)) in screened
-        .iter()
-        .enumerate()
-        .filter(|(i, _)| !to_refit.contains(i))
-    {
+    let refitted: Vec<Effect> = singles.iter().map(|(e, _)| *e).collect();
+    for (e, d, _) in screened_only(&screened, &refitted) {
         reports.push(EffectReport {
             id: e.id(),
             significant: false,
@@ -2603,6 +2595,16 @@ fn reference_supported(
         .filter(|((e, d, _), drop)| drop.is_some_and(|r| d + r > penalty_of(*e)))
         .map(|((e, _, _), _)| *e)
         .collect()
+}
+
+/// The screened candidates the report gives by their screening alone: every one without a
+/// refit. A candidate chosen for a refit none of whose forms could be fitted is among them;
+/// taken from the candidates not chosen instead, it was left out of the report altogether.
+fn screened_only<'a>(
+    screened: &'a [(Effect, f64, Vec<f64>)],
+    refitted: &'a [Effect],
+) -> impl Iterator<Item = &'a (Effect, f64, Vec<f64>)> + 'a {
+    screened.iter().filter(|(e, _, _)| !refitted.contains(e))
 }
 
 /// Adds `e`'s index in `screened` to `to_refit`, once (nothing when `e` was not screened).
@@ -4849,6 +4851,25 @@ mod tests {
         };
         assert!(!outside_time(&white).is_empty());
         assert_eq!(outside_time(&rising), outside_time(&white));
+    }
+
+    /// Every screened candidate is reported: those refitted by their refit, the others by
+    /// their screening, among them one chosen for a refit that no form of could be fitted.
+    #[test]
+    fn a_candidate_whose_refit_failed_is_reported_by_its_screening() {
+        use super::model::Effect::{Adhesion, ChannelDelay, ThermalDrift};
+        let screened = vec![
+            (ThermalDrift, 30.0, vec![]),
+            (Adhesion, 20.0, vec![]),
+            (ChannelDelay, 10.0, vec![]),
+        ];
+        // Thermal drift and adhesion were chosen for refits; only the drift's could be fitted.
+        let only: Vec<_> = super::screened_only(&screened, &[ThermalDrift])
+            .map(|(e, d, _)| (*e, *d))
+            .collect();
+        assert_eq!(only, [(Adhesion, 20.0), (ChannelDelay, 10.0)]);
+        let all = [ThermalDrift, Adhesion, ChannelDelay];
+        assert_eq!(super::screened_only(&screened, &all).count(), 0);
     }
 
     /// A third held out, a held block starting at the anchor, and around each event every
