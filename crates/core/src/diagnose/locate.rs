@@ -486,10 +486,41 @@ pub fn whiteness(e: &[f64], drive: &[f64], fs_hz: f64) -> Vec<Location> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use rand::{rngs::StdRng, SeedableRng};
     use rand_distr::{Distribution, StandardNormal};
+
+    /// Sample rate (Hz) and length of [`wander_on_unit_floor`] and [`record_phases`].
+    pub(crate) const WANDER_FS_HZ: f64 = 4000.0;
+    pub(crate) const WANDER_N: usize = 20_000;
+
+    /// A unit white floor (noise seeded by `seed`) under slow wander at 0.5–3 Hz, 1.27
+    /// floors rms in all: what a 1/f floor measured above 4 Hz leaves below its band.
+    pub(crate) fn wander_on_unit_floor(seed: u64) -> Vec<f64> {
+        let mut rng = StdRng::seed_from_u64(seed);
+        let tone =
+            |f: f64, k: usize| (2.0 * std::f64::consts::PI * f * k as f64 / WANDER_FS_HZ).sin();
+        (0..WANDER_N)
+            .map(|k| {
+                let white: f64 = StandardNormal.sample(&mut rng);
+                white + 1.2 * tone(0.5, k) + 0.9 * tone(1.3, k + 97) + 1.0 * tone(3.0, k)
+            })
+            .collect()
+    }
+
+    /// The four long phases of a [`WANDER_N`]-sample record and a pull-off event in its
+    /// retract.
+    pub(crate) fn record_phases() -> [Phase; 5] {
+        let phase = |name, start, end| Phase { name, start, end };
+        [
+            phase("approach", 0, 4000),
+            phase("excitation", 4000, 12_000),
+            phase("hold", 12_000, 16_000),
+            phase("retract", 16_000, 20_000),
+            phase("pull_off", 17_000, 17_400),
+        ]
+    }
 
     /// Below a floor that rises as 1/f, the long phases are judged above the floor's lowest
     /// frequency, the events on the whole residual: a slow wander below it, 1.6 times the
@@ -498,25 +529,10 @@ mod tests {
     /// pull-off's window is judged whole.
     #[test]
     fn long_phases_are_judged_above_the_floors_lowest_frequency() {
-        let (fs, n, f_min) = (4000.0, 20_000, 4.0);
-        let mut rng = StdRng::seed_from_u64(11);
+        let (fs, f_min) = (WANDER_FS_HZ, 4.0);
         let tone = |f: f64, k: usize| (2.0 * std::f64::consts::PI * f * k as f64 / fs).sin();
-        // Wander at 0.5–3 Hz (below f_min), 1.27 floors rms in all.
-        let wander = |k: usize| 1.2 * tone(0.5, k) + 0.9 * tone(1.3, k + 97) + 1.0 * tone(3.0, k);
-        let mut e: Vec<f64> = (0..n)
-            .map(|k| {
-                let white: f64 = StandardNormal.sample(&mut rng);
-                white + wander(k)
-            })
-            .collect();
-        let phase = |name, start, end| Phase { name, start, end };
-        let phases = [
-            phase("approach", 0, 4000),
-            phase("excitation", 4000, 12_000),
-            phase("hold", 12_000, 16_000),
-            phase("retract", 16_000, 20_000),
-            phase("pull_off", 17_000, 17_400),
-        ];
+        let mut e = wander_on_unit_floor(11);
+        let phases = record_phases();
         // A 100 Hz misfit of 0.6 of the floor's amplitude over the hold: χ² +18 %.
         for (k, v) in e.iter_mut().enumerate().take(16_000).skip(12_000) {
             *v += 0.6 * tone(100.0, k);

@@ -4794,17 +4794,10 @@ mod tests {
     /// way, as is everything outside the time domain.
     #[test]
     fn locations_follow_the_problems_floor_into_the_time_phases() {
-        use rand::SeedableRng;
-        use rand_distr::{Distribution, StandardNormal};
-        let (fs, n) = (FS_HZ, 20_000);
+        use super::locate::tests::{record_phases, wander_on_unit_floor, WANDER_FS_HZ, WANDER_N};
+        let (fs, n) = (WANDER_FS_HZ, WANDER_N);
         let tone = |f: f64, k: usize| (2.0 * std::f64::consts::PI * f * k as f64 / fs).sin();
-        let mut rng = rand::rngs::StdRng::seed_from_u64(13);
-        let e: Vec<f64> = (0..n)
-            .map(|k| {
-                let white: f64 = StandardNormal.sample(&mut rng);
-                white + 1.2 * tone(0.5, k) + 0.9 * tone(1.3, k + 97) + 1.0 * tone(3.0, k)
-            })
-            .collect();
+        let e = wander_on_unit_floor(13);
         let drive: Vec<f64> = (0..n).map(|k| tone(37.0, k) + tone(211.0, k)).collect();
         let mut problem = super::model::test_problem(
             &nominal_twin(1),
@@ -4815,14 +4808,7 @@ mod tests {
             vec![1.0],
         );
         problem.floor_from_hz = 4.0;
-        let phase = |name, start, end| locate::Phase { name, start, end };
-        let phases = [
-            phase("approach", 0, 4000),
-            phase("excitation", 4000, 12_000),
-            phase("hold", 12_000, 16_000),
-            phase("retract", 16_000, 20_000),
-            phase("pull_off", 17_000, 17_400),
-        ];
+        let phases = record_phases();
         let z = |locations: &[Location], name: &str| {
             locations
                 .iter()
