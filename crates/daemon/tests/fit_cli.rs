@@ -537,9 +537,24 @@ fn real_jpk_diagnose_json_keeps_the_documented_keys() {
     unique.dedup();
     assert_eq!(unique.len(), ids.len(), "an id twice: {ids:?}");
     assert!(ids.iter().all(|id| CATALOG.contains(id)), "{ids:?}");
-    // The file's base position is the stage's height sensor: no piezo candidates.
-    assert_eq!(ids.len(), CATALOG.len() - 2, "{ids:?}");
-    assert!(!ids.contains(&"piezo_creep") && !ids.contains(&"piezo_hysteresis"));
+    // Every id is there. The file's base position is the stage's height sensor: the piezo
+    // candidates are not weighed, come last, and say why; every other one was weighed.
+    assert_eq!(ids.len(), CATALOG.len(), "{ids:?}");
+    let (weighed, not): (Vec<_>, Vec<_>) =
+        effects.iter().partition(|e| e["not_evaluated"].is_null());
+    let not_ids: Vec<&str> = not.iter().map(|e| e["id"].as_str().unwrap()).collect();
+    assert_eq!(not_ids, ["piezo_hysteresis", "piezo_creep"], "{ids:?}");
+    assert_eq!(&ids[weighed.len()..], not_ids, "{ids:?}");
+    for e in not {
+        assert!(
+            e["not_evaluated"]
+                .as_str()
+                .unwrap()
+                .contains("height sensor"),
+            "{e}"
+        );
+        assert_eq!(e["significant"], false, "{e}");
+    }
     // Significant effects first, adhesion the strongest.
     let significant: Vec<bool> = effects
         .iter()

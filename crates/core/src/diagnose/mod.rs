@@ -162,6 +162,10 @@ pub struct EffectReport {
     /// Why a candidate that beat every margin is not named all the same (a mode fitted
     /// beyond what the record samples, a drag fitted negative).
     pub refused: Option<&'static str>,
+    /// Why the candidate was not weighed at all (the piezo's own effects behind a height
+    /// sensor, or a screening none of whose starts gave a physical twin): its `evidence` and
+    /// `train_drop` are then 0 and say nothing. `None` for every candidate screened.
+    pub not_evaluated: Option<&'static str>,
     /// The smallest size at which this recording would have named the candidate ([`limit`]):
     /// only for the candidates of one shape ([`limit::limit_spec`]), and `None` where the
     /// nominal model takes it up whole.
@@ -1700,28 +1704,40 @@ pub fn diagnose_observed(
             sensor_evidence: j.sensor.map(|s| s.1),
             reference_evidence: j.reference.map(|s| s.1),
             refused: j.refused,
+            not_evaluated: None,
             detection_limit: limit_of(*e),
             description: e.describe(),
         });
     }
+    // The candidates without a refit: given by their screening's drop, or, where they could
+    // not be weighed at all, by why (every catalog id is in the report).
+    let unrefitted = |e: Effect, drop: f64, not_evaluated: Option<&'static str>| EffectReport {
+        id: e.id(),
+        significant: false,
+        evidence: drop,
+        train_drop: drop,
+        bic_penalty: penalty_of(e),
+        given: None,
+        refitted: false,
+        params: vec![],
+        held_out_nrmse: None,
+        sensor_evidence: None,
+        reference_evidence: None,
+        refused: None,
+        not_evaluated,
+        detection_limit: limit_of(e),
+        description: e.describe(),
+    };
     let refitted: Vec<Effect> = singles.iter().map(|(e, _)| *e).collect();
     for (e, d, _) in screened_only(&screened, &refitted) {
-        reports.push(EffectReport {
-            id: e.id(),
-            significant: false,
-            evidence: *d,
-            train_drop: *d,
-            bic_penalty: penalty_of(*e),
-            given: None,
-            refitted: false,
-            params: vec![],
-            held_out_nrmse: None,
-            sensor_evidence: None,
-            reference_evidence: None,
-            refused: None,
-            detection_limit: limit_of(*e),
-            description: e.describe(),
-        });
+        reports.push(unrefitted(*e, *d, None));
+    }
+    let weighed: Vec<Effect> = Effect::ALL
+        .into_iter()
+        .filter(|e| reports.iter().any(|r| r.id == e.id()))
+        .collect();
+    for (e, why) in not_evaluated(&weighed, base_position) {
+        reports.push(unrefitted(e, 0.0, Some(why)));
     }
     sig_singles.sort_by(|a, b| b.2.total_cmp(&a.2));
     let ranked: Vec<(Effect, f64)> = sig_singles.iter().map(|(e, _, s)| (*e, *s)).collect();
@@ -1858,6 +1874,7 @@ pub fn diagnose_observed(
         rank(a)
             .cmp(&rank(b))
             .then(b.refitted.cmp(&a.refitted))
+            .then(a.not_evaluated.is_some().cmp(&b.not_evaluated.is_some()))
             .then(b.evidence.total_cmp(&a.evidence))
     });
 
@@ -2605,6 +2622,26 @@ fn screened_only<'a>(
     refitted: &'a [Effect],
 ) -> impl Iterator<Item = &'a (Effect, f64, Vec<f64>)> + 'a {
     screened.iter().filter(|(e, _, _)| !refitted.contains(e))
+}
+
+/// The catalog effects a diagnosis could not weigh at all, each with why, in catalog order:
+/// the piezo's own effects where the base position is read after them (`HeightSensor`), and
+/// a candidate none of whose screening starts gave a physical twin. `weighed`: the effects
+/// already reported (screened, in either round).
+fn not_evaluated(weighed: &[Effect], base_position: BasePosition) -> Vec<(Effect, &'static str)> {
+    Effect::ALL
+        .into_iter()
+        .filter(|e| !weighed.contains(e))
+        .map(|e| {
+            let piezo = matches!(e, Effect::PiezoCreep | Effect::PiezoHysteresis);
+            let why = if piezo && !base_position.shows_piezo_effects() {
+                "not diagnosed: the base position is the stage's height sensor, which reads the piezo's path after its creep and hysteresis"
+            } else {
+                "not screened: no start of its screening gave a physical twin"
+            };
+            (e, why)
+        })
+        .collect()
 }
 
 /// Adds `e`'s index in `screened` to `to_refit`, once (nothing when `e` was not screened).
@@ -4544,6 +4581,12 @@ mod tests {
         })
         .unwrap();
         assert_eq!(d.effects[0].id, "thermal_drift", "{:?}", d.effects[0]);
+        // Every catalog id once, each weighed: the drive shows the piezo.
+        let mut ids: Vec<_> = d.effects.iter().map(|e| e.id).collect();
+        ids.sort_unstable();
+        ids.dedup();
+        assert_eq!(ids.len(), super::model::Effect::ALL.len(), "{ids:?}");
+        assert!(d.effects.iter().all(|e| e.not_evaluated.is_none()));
         let seen = seen.into_inner().unwrap();
         let s = d.simulations;
         let Some(Progress::NominalFitted {
@@ -4856,6 +4899,35 @@ mod tests {
         assert_eq!(only, [(Adhesion, 20.0), (ChannelDelay, 10.0)]);
         let all = [ThermalDrift, Adhesion, ChannelDelay];
         assert_eq!(super::screened_only(&screened, &all).count(), 0);
+    }
+
+    /// Every catalog id the report has not weighed is given with why: the piezo's own effects
+    /// behind a height sensor, any other as a screening that found no physical twin; and
+    /// nothing where every candidate was weighed.
+    #[test]
+    fn a_candidate_never_weighed_is_reported_with_why() {
+        use super::model::Effect::{self, Adhesion, PiezoCreep, PiezoHysteresis};
+        use super::BasePosition::{CommandedDisplacement, Drive, HeightSensor};
+        let all_but = |left: &[Effect]| -> Vec<Effect> {
+            Effect::ALL
+                .into_iter()
+                .filter(|e| !left.contains(e))
+                .collect()
+        };
+        let left = super::not_evaluated(&all_but(&[PiezoCreep, PiezoHysteresis]), HeightSensor);
+        let ids: Vec<_> = left.iter().map(|(e, _)| *e).collect();
+        assert_eq!(ids, [PiezoHysteresis, PiezoCreep]);
+        assert!(left.iter().all(|(_, why)| why.contains("height sensor")));
+        // Where the base position shows the piezo, a piezo effect left out failed its screening.
+        for base in [Drive, CommandedDisplacement] {
+            let left = super::not_evaluated(&all_but(&[PiezoCreep, Adhesion]), base);
+            assert_eq!(left.len(), 2);
+            assert!(
+                left.iter().all(|(_, why)| why.contains("no start")),
+                "{left:?}"
+            );
+        }
+        assert!(super::not_evaluated(&Effect::ALL, HeightSensor).is_empty());
     }
 
     /// A third held out, a held block starting at the anchor, and around each event every

@@ -99,6 +99,7 @@ pub fn diagnosis_json(file: &str, d: &Diagnosis, seconds: f64) -> Value {
             "sensor_evidence": e.sensor_evidence,
             "reference_evidence": e.reference_evidence,
             "refused": e.refused,
+            "not_evaluated": e.not_evaluated,
             "detection_limit": e.detection_limit.as_ref().map(|l| json!({
                 "param": {"name": l.param, "unit": l.unit, "value": l.value},
                 "rms_v": l.rms_v,
@@ -387,6 +388,11 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
     }
     for b in &d.blind_spots {
         println!("  cannot see: {} — {}", b.id, b.why);
+    }
+    for e in &d.effects {
+        if let Some(why) = e.not_evaluated {
+            println!("  not weighed: {} — {why}", e.id);
+        }
     }
     for e in d.effects.iter().filter(|e| !e.significant) {
         if let Some(l) = &e.detection_limit {
