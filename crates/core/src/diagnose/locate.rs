@@ -1,6 +1,8 @@
-//! Where a mismatch lives: the record's phases in time, bands and lines in frequency, and the
-//! residual's whiteness and correlation with the input — each with a significance against
-//! the measured noise floor.
+//! Where a mismatch lives: the record's phases in time, bands and lines in frequency, the
+//! residual's whiteness, its correlation with the input and with the input's square
+//! (nonlinear correlations), and over a repeated excitation the part every period shares and
+//! the variation between periods — each with a significance against the measured noise
+//! floor.
 //!
 //! Phases are found from the signals, never from the sidecar's notes (third-party files do not
 //! have them): the approach runs to the contact point; the retract is the final run of
@@ -8,6 +10,7 @@
 //! between contact and hold (or retract); the pull-off is the jump back to the free baseline
 //! after the deepest adhesive dip on retract.
 
+use crate::analysis::periodic::PeriodicRun;
 use serde::Serialize;
 
 /// A phase of the record, `[start, end)` in samples.
@@ -118,7 +121,8 @@ pub fn phases(
 /// One located mismatch.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Location {
-    /// `time`, `frequency`, `whiteness` or `input_correlation`.
+    /// `time`, `frequency`, `whiteness`, `input_correlation`, `nonlinear_correlation` or
+    /// `periods`.
     pub domain: &'static str,
     /// Phase name, band name (`excited_lines`, `mains_lines`, `band`), or statistic.
     pub name: String,
@@ -442,27 +446,8 @@ pub fn whiteness(e: &[f64], drive: &[f64], fs_hz: f64) -> Vec<Location> {
         * (n as f64 + 2.0);
     // χ²₂₀ has mean 20 and σ √40.
     let zq = (q - lags as f64) / (2.0 * lags as f64).sqrt();
-    let du: Vec<f64> = std::iter::once(0.0)
-        .chain(drive.windows(2).map(|w| w[1] - w[0]))
-        .collect();
-    let mu = du.iter().sum::<f64>() / n as f64;
-    let du: Vec<f64> = du.iter().map(|v| v - mu).collect();
-    let cu: f64 = du.iter().map(|v| v * v).sum::<f64>().max(1e-300);
-    let (mut best, mut best_lag) = (0.0f64, 0i64);
-    for lag in -20i64..=20 {
-        let s: f64 = (0..n)
-            .filter_map(|i| {
-                let j = i as i64 - lag;
-                (j >= 0 && (j as usize) < n).then(|| x[i] * du[j as usize])
-            })
-            .sum();
-        let r = s / (c0 * cu).sqrt();
-        if r.abs() > best.abs() {
-            best = r;
-            best_lag = lag;
-        }
-    }
-    let zc = best.abs() * (n as f64).sqrt();
+    let du = centred(&increments(drive));
+    let (best, best_lag) = largest_correlation(&x, &du);
     vec![
         Location {
             domain: "whiteness",
@@ -473,15 +458,163 @@ pub fn whiteness(e: &[f64], drive: &[f64], fs_hz: f64) -> Vec<Location> {
             z: zq,
             significant: zq > Z_SIGNIFICANT,
         },
+        correlation_location(
+            "input_correlation",
+            "drive increments",
+            (best, best_lag),
+            n,
+            fs_hz,
+        ),
+    ]
+}
+
+/// The drive's increments, the first taken as 0: the input the correlations are measured
+/// against (the drive itself wanders with the approach and retract).
+fn increments(drive: &[f64]) -> Vec<f64> {
+    std::iter::once(0.0)
+        .chain(drive.windows(2).map(|w| w[1] - w[0]))
+        .collect()
+}
+
+fn centred(x: &[f64]) -> Vec<f64> {
+    let m = x.iter().sum::<f64>() / x.len().max(1) as f64;
+    x.iter().map(|v| v - m).collect()
+}
+
+/// Lags (samples, each way) over which the correlations are searched.
+const CORRELATION_LAGS: i64 = 20;
+
+/// The largest normalised cross-correlation of `x` with `u` (both centred) over lags
+/// −20..=20 (`x[i]` against `u[i − lag]`), and its lag.
+fn largest_correlation(x: &[f64], u: &[f64]) -> (f64, i64) {
+    let n = x.len().min(u.len());
+    let c0: f64 = x.iter().map(|v| v * v).sum();
+    let cu: f64 = u.iter().map(|v| v * v).sum::<f64>().max(1e-300);
+    let (mut best, mut best_lag) = (0.0f64, 0i64);
+    for lag in -CORRELATION_LAGS..=CORRELATION_LAGS {
+        let s: f64 = (0..n)
+            .filter_map(|i| {
+                let j = i as i64 - lag;
+                (j >= 0 && (j as usize) < n).then(|| x[i] * u[j as usize])
+            })
+            .sum();
+        let r = s / (c0 * cu).sqrt();
+        if r.abs() > best.abs() {
+            best = r;
+            best_lag = lag;
+        }
+    }
+    (best, best_lag)
+}
+
+/// A correlation `r` at `lag` over `n` samples as a location: `z = |r|·√n`, the correlation
+/// as its `power_ratio`, the lag (s) as its span.
+fn correlation_location(
+    domain: &'static str,
+    name: &str,
+    (r, lag): (f64, i64),
+    n: usize,
+    fs_hz: f64,
+) -> Location {
+    let z = r.abs() * (n as f64).sqrt();
+    Location {
+        domain,
+        name: format!("{name}, lag {lag} samples"),
+        from: lag as f64 / fs_hz,
+        to: lag as f64 / fs_hz,
+        power_ratio: r,
+        z,
+        significant: z > Z_SIGNIFICANT,
+    }
+}
+
+/// Billings and Voon's higher-order correlation tests (1986) of the residual `e` against the
+/// drive's increments `u`: the residual against `u²` (centred), which an even nonlinearity
+/// the model lacks leaves (a detector's quadratic term, a drag that grows with speed), and
+/// the residual's square against `u²`, which an odd one or a noise that grows with the
+/// motion leaves. A linear model's residual can be white and uncorrelated with `u` and still
+/// show in these. Each is the largest over lags −20..=20, `z = |r|·√N`.
+pub fn nonlinear_correlation(e: &[f64], drive: &[f64], fs_hz: f64) -> Vec<Location> {
+    let n = e.len().min(drive.len());
+    if n < 100 {
+        return vec![];
+    }
+    let x = centred(&e[..n]);
+    let du = increments(&drive[..n]);
+    let u2 = centred(&du.iter().map(|v| v * v).collect::<Vec<f64>>());
+    let x2 = centred(&x.iter().map(|v| v * v).collect::<Vec<f64>>());
+    let location = |name: &str, largest: (f64, i64)| {
+        correlation_location("nonlinear_correlation", name, largest, n, fs_hz)
+    };
+    vec![
+        location("squared drive increments", largest_correlation(&x, &u2)),
+        location(
+            "squared drive increments vs squared residual",
+            largest_correlation(&x2, &u2),
+        ),
+    ]
+}
+
+/// Over a repeated excitation (`run`, its whole periods as
+/// [`crate::analysis::periodic::detect_periodic`] finds them in the drive), the residual `e`
+/// of those periods split in two: the part every period shares (the mean over the
+/// periods: a steady misfit of the model, seen the same each time) and the variation between
+/// periods (a drift, a creep, a slow wander, an event: what changes from one to the next).
+/// Under the floor `m` periods' mean has `m` times a sample's χ² per sample, the deviations
+/// from it `m − 1`. Where the floor rises at its bottom as 1/f noise does (`slow_below_hz`),
+/// both are judged above that frequency, as the long phases are ([`in_time`]): below it the
+/// floor vouches for nothing, and its wander would be read as variation.
+pub fn periods(
+    e: &[f64],
+    run: PeriodicRun,
+    fs_hz: f64,
+    slow_below_hz: Option<f64>,
+) -> Vec<Location> {
+    let PeriodicRun {
+        start,
+        period_samples: period,
+        periods: m,
+    } = run;
+    if m < 2 || period == 0 || start + m * period > e.len() {
+        return vec![];
+    }
+    let (r, kept) = match slow_below_hz {
+        Some(f) => above_frequency(e, fs_hz, f),
+        None => (e.to_vec(), 1.0),
+    };
+    let at = |j: usize, i: usize| r[start + j * period + i];
+    let mean: Vec<f64> = (0..period)
+        .map(|i| (0..m).map(|j| at(j, i)).sum::<f64>() / m as f64)
+        .collect();
+    let shared: f64 = m as f64 * mean.iter().map(|v| v * v).sum::<f64>();
+    let varied: f64 = (0..m)
+        .map(|j| {
+            (0..period)
+                .map(|i| (at(j, i) - mean[i]).powi(2))
+                .sum::<f64>()
+        })
+        .sum();
+    let (from, to) = (start as f64 / fs_hz, (start + m * period) as f64 / fs_hz);
+    let location = |name: String, chi2: f64, dof: f64| {
+        let dof = dof * kept;
+        let z = (chi2 - dof) / (2.0 * dof).sqrt();
         Location {
-            domain: "input_correlation",
-            name: format!("drive increments, lag {best_lag} samples"),
-            from: best_lag as f64 / fs_hz,
-            to: best_lag as f64 / fs_hz,
-            power_ratio: best,
-            z: zc,
-            significant: zc > Z_SIGNIFICANT,
-        },
+            domain: "periods",
+            name,
+            from,
+            to,
+            power_ratio: chi2 / dof,
+            z,
+            significant: z > Z_SIGNIFICANT,
+        }
+    };
+    vec![
+        location(format!("shared by all {m} periods"), shared, period as f64),
+        location(
+            format!("varies between the {m} periods"),
+            varied,
+            ((m - 1) * period) as f64,
+        ),
     ]
 }
 
@@ -490,6 +623,82 @@ pub(crate) mod tests {
     use super::*;
     use rand::{rngs::StdRng, SeedableRng};
     use rand_distr::{Distribution, StandardNormal};
+
+    /// On the floor alone both parts of a repeated excitation's residual are at the floor; a
+    /// misfit the same in every period shows as shared and not as variation, a burst in one
+    /// period as variation.
+    #[test]
+    fn the_shared_part_and_the_variation_between_periods_are_told_apart() {
+        let (period, count, start) = (1000, 5, 500);
+        let run = PeriodicRun {
+            start,
+            period_samples: period,
+            periods: count,
+        };
+        let mut rng = StdRng::seed_from_u64(7);
+        let floor: Vec<f64> = (0..7000).map(|_| StandardNormal.sample(&mut rng)).collect();
+        let z = |e: &[f64]| -> (f64, f64) {
+            let l = periods(e, run, 1000.0, None);
+            assert_eq!(l.len(), 2);
+            (l[0].z, l[1].z)
+        };
+        let (shared, varied) = z(&floor);
+        assert!(
+            shared.abs() < 4.0 && varied.abs() < 4.0,
+            "{shared} {varied}"
+        );
+        // A misfit of half the floor's rms at the period's third harmonic.
+        let steady: Vec<f64> = floor
+            .iter()
+            .enumerate()
+            .map(|(k, v)| {
+                let phase = 2.0 * std::f64::consts::PI * 3.0 * (k as f64) / period as f64;
+                v + 0.5 * std::f64::consts::SQRT_2 * phase.sin()
+            })
+            .collect();
+        let (shared, varied) = z(&steady);
+        assert!(shared > 20.0 && varied.abs() < 4.0, "{shared} {varied}");
+        // A burst of two floors over half of the third period.
+        let mut burst = floor.clone();
+        burst[start + 2 * period..start + 2 * period + 500]
+            .iter_mut()
+            .for_each(|v| *v += 2.0);
+        let (_, varied) = z(&burst);
+        assert!(varied > 12.0, "{varied}");
+    }
+
+    /// A residual that carries the square of the drive's increments (an even nonlinearity
+    /// the model lacks) is white and uncorrelated with the increments themselves, and shows
+    /// in the higher-order correlation; the floor alone shows in none.
+    #[test]
+    fn an_even_nonlinearity_shows_in_the_higher_order_correlation() {
+        use crate::diagnose::corpus::{protocol_drive, FS_HZ};
+        let (drive, _) = protocol_drive(FS_HZ);
+        let n = drive.len();
+        let mut rng = StdRng::seed_from_u64(9);
+        let floor: Vec<f64> = (0..n).map(|_| StandardNormal.sample(&mut rng)).collect();
+        let z_of = |e: &[f64]| -> Vec<f64> {
+            nonlinear_correlation(e, &drive, FS_HZ)
+                .iter()
+                .map(|l| l.z)
+                .collect()
+        };
+        let at_floor = z_of(&floor);
+        assert!(at_floor.iter().all(|z| *z < 4.0), "{at_floor:?}");
+        let du = increments(&drive);
+        let u2 = centred(&du.iter().map(|v| v * v).collect::<Vec<f64>>());
+        let rms = (u2.iter().map(|v| v * v).sum::<f64>() / n as f64).sqrt();
+        // A fifth of the floor's rms.
+        let bent: Vec<f64> = floor
+            .iter()
+            .zip(&u2)
+            .map(|(v, q)| v + 0.2 * q / rms)
+            .collect();
+        let z = z_of(&bent);
+        assert!(z[0] > 20.0, "{z:?}");
+        let linear = whiteness(&bent, &drive, FS_HZ);
+        assert!(linear[1].z < Z_SIGNIFICANT, "{linear:?}");
+    }
 
     /// Sample rate (Hz) and length of [`wander_on_unit_floor`] and [`record_phases`].
     pub(crate) const WANDER_FS_HZ: f64 = 4000.0;

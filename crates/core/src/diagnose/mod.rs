@@ -2044,6 +2044,17 @@ fn locations(problem: &Problem, e: &[f64], phases: &[Phase]) -> Vec<Location> {
         problem.floor_from_hz,
     ));
     out.extend(locate::whiteness(e, &problem.drive, fs));
+    out.extend(locate::nonlinear_correlation(e, &problem.drive, fs));
+    // A repeated excitation: its whole periods, found in the drive over the excitation phase
+    // (which may take in the end of the approach).
+    let excitation = problem.drive.get(window.0..window.1).unwrap_or_default();
+    if let Some(run) = crate::analysis::periodic::detect_periodic(excitation) {
+        let run = crate::analysis::periodic::PeriodicRun {
+            start: window.0 + run.start,
+            ..run
+        };
+        out.extend(locate::periods(e, run, fs, slow));
+    }
     out.sort_by(|a, b| b.z.total_cmp(&a.z));
     out
 }
@@ -4622,6 +4633,20 @@ mod tests {
         ids.dedup();
         assert_eq!(ids.len(), super::model::Effect::ALL.len(), "{ids:?}");
         assert!(d.effects.iter().all(|e| e.not_evaluated.is_none()));
+        // The multisine's whole periods are found inside the excitation phase (which takes in
+        // the end of the approach), and the residual is judged over them in its two parts.
+        let periods: Vec<&str> = d
+            .locations_before
+            .iter()
+            .filter(|l| l.domain == "periods")
+            .map(|l| l.name.as_str())
+            .collect();
+        assert_eq!(
+            periods,
+            ["shared by all 4 periods", "varies between the 4 periods"],
+            "{:#?}",
+            d.locations_before
+        );
         let seen = seen.into_inner().unwrap();
         let s = d.simulations;
         let Some(Progress::NominalFitted {

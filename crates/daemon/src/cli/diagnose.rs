@@ -506,7 +506,7 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
         any = true;
         let unit = if l.domain == "frequency" { "Hz" } else { "s" };
         println!(
-            "  {:<17} {:<32} {:>9.3}–{:<9.3} {unit}  power ×{:.2}, z {:.1}",
+            "  {:<21} {:<32} {:>9.3}–{:<9.3} {unit}  power ×{:.2}, z {:.1}",
             l.domain, l.name, l.from, l.to, l.power_ratio, l.z
         );
     }
