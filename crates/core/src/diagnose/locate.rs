@@ -547,9 +547,9 @@ pub fn nonlinear_correlation(e: &[f64], drive: &[f64], fs_hz: f64) -> Vec<Locati
         correlation_location("nonlinear_correlation", name, largest, n, fs_hz)
     };
     vec![
-        location("squared drive increments", largest_correlation(&x, &u2)),
+        location("drive increments²", largest_correlation(&x, &u2)),
         location(
-            "squared drive increments vs squared residual",
+            "residual² vs drive increments²",
             largest_correlation(&x2, &u2),
         ),
     ]

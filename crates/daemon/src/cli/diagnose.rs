@@ -501,16 +501,19 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
         a(&d.after)
     );
     println!("where the nominal residual exceeds the floor (z = σ of the floor's own scatter):");
-    let mut any = false;
-    for l in d.locations_before.iter().filter(|l| l.significant).take(8) {
-        any = true;
-        let unit = if l.domain == "frequency" { "Hz" } else { "s" };
-        println!(
-            "  {:<21} {:<32} {:>9.3}–{:<9.3} {unit}  power ×{:.2}, z {:.1}",
-            l.domain, l.name, l.from, l.to, l.power_ratio, l.z
-        );
+    // The phases and bands first, then the statistics of the whole residual, so that the
+    // statistics' large z do not push a phase off the list.
+    let significant = |place: bool| {
+        d.locations_before
+            .iter()
+            .filter(move |l| l.significant && is_place(l) == place)
+    };
+    let places: Vec<_> = significant(true).take(8).collect();
+    let statistics: Vec<_> = significant(false).take(6).collect();
+    for l in places.iter().chain(&statistics) {
+        println!("  {}", location_line(l));
     }
-    if !any {
+    if places.is_empty() && statistics.is_empty() {
         println!("  nowhere");
     }
     let left: Vec<_> = d
@@ -545,6 +548,27 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
             );
         }
     }
+}
+
+/// Whether a location is a place in the record (a phase or a band) rather than a statistic of
+/// the whole residual (whiteness, correlations, the periods' parts).
+fn is_place(l: &viscoprobe_core::diagnose::locate::Location) -> bool {
+    l.domain == "time" || l.domain == "frequency"
+}
+
+/// One location as a line of the report: its span in s or Hz, and its level — power over the
+/// floor, or for a correlation the correlation itself.
+fn location_line(l: &viscoprobe_core::diagnose::locate::Location) -> String {
+    let unit = if l.domain == "frequency" { "Hz" } else { "s" };
+    let level = if l.domain.ends_with("correlation") {
+        format!("r {:+.3}", l.power_ratio)
+    } else {
+        format!("power ×{:.2}", l.power_ratio)
+    };
+    format!(
+        "{:<21} {:<46} {:>9.3}–{:<9.3} {unit}  {level}, z {:.1}",
+        l.domain, l.name, l.from, l.to, l.z
+    )
 }
 
 /// A detection limit's size in a unit a person reads at a glance: a delay in µs, others as
@@ -1059,6 +1083,41 @@ mod tests {
             "refits judged: adhesion, tip_geometry beat the nominal twin on their own (strongest first); pairs next"
         );
         assert_eq!(judged(vec![]), "refits judged: none beats the nominal twin");
+    }
+
+    /// A correlation prints as the correlation, a phase as its power over the floor; phases
+    /// and bands are places, the statistics of the whole residual are not.
+    #[test]
+    fn a_location_prints_its_level_in_its_own_terms() {
+        use viscoprobe_core::diagnose::locate::Location;
+        let at = |domain: &'static str, name: &str, power_ratio: f64| Location {
+            domain,
+            name: name.into(),
+            from: 0.5,
+            to: 1.25,
+            power_ratio,
+            z: 12.34,
+            significant: true,
+        };
+        let phase = at("time", "hold", 2.5);
+        assert!(is_place(&phase));
+        assert_eq!(
+            location_line(&phase),
+            "time                  hold                                               0.500–1.250     s  power ×2.50, z 12.3"
+        );
+        let nonlinear = at(
+            "nonlinear_correlation",
+            "drive increments², lag -3 samples",
+            -0.18,
+        );
+        assert!(!is_place(&nonlinear));
+        assert!(
+            location_line(&nonlinear).ends_with("s  r -0.180, z 12.3"),
+            "{}",
+            location_line(&nonlinear)
+        );
+        assert!(!is_place(&at("periods", "shared by all 5 periods", 3.0)));
+        assert!(is_place(&at("frequency", "excited_lines", 3.0)));
     }
 
     /// Retardation times print in ms down to 0.1 ms and in µs below, never as "0.000 ms".
