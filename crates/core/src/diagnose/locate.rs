@@ -136,6 +136,15 @@ pub struct Location {
     pub significant: bool,
 }
 
+impl Location {
+    /// Whether this is a place in the record — a phase in time or a band in frequency —
+    /// rather than a statistic of the whole residual (whiteness, the correlations, the
+    /// periods' parts). Only places make a residual structured (the verdict's rule).
+    pub fn is_place(&self) -> bool {
+        self.domain == "time" || self.domain == "frequency"
+    }
+}
+
 /// Threshold of significance, in standard deviations.
 pub const Z_SIGNIFICANT: f64 = 5.0;
 
@@ -481,6 +490,11 @@ fn centred(x: &[f64]) -> Vec<f64> {
     x.iter().map(|v| v - m).collect()
 }
 
+/// The squares of `x`, centred: the higher-order tests' second signal.
+fn centred_squares(x: &[f64]) -> Vec<f64> {
+    centred(&x.iter().map(|v| v * v).collect::<Vec<f64>>())
+}
+
 /// Lags (samples, each way) over which the correlations are searched.
 const CORRELATION_LAGS: i64 = 20;
 
@@ -541,8 +555,8 @@ pub fn nonlinear_correlation(e: &[f64], drive: &[f64], fs_hz: f64) -> Vec<Locati
     }
     let x = centred(&e[..n]);
     let du = increments(&drive[..n]);
-    let u2 = centred(&du.iter().map(|v| v * v).collect::<Vec<f64>>());
-    let x2 = centred(&x.iter().map(|v| v * v).collect::<Vec<f64>>());
+    let u2 = centred_squares(&du);
+    let x2 = centred_squares(&x);
     let location = |name: &str, largest: (f64, i64)| {
         correlation_location("nonlinear_correlation", name, largest, n, fs_hz)
     };
@@ -640,6 +654,8 @@ pub(crate) mod tests {
         let z = |e: &[f64]| -> (f64, f64) {
             let l = periods(e, run, 1000.0, None);
             assert_eq!(l.len(), 2);
+            // Statistics of the whole residual, not places the verdict reads.
+            assert!(l.iter().all(|l| !l.is_place()), "{l:?}");
             (l[0].z, l[1].z)
         };
         let (shared, varied) = z(&floor);
@@ -685,8 +701,7 @@ pub(crate) mod tests {
         };
         let at_floor = z_of(&floor);
         assert!(at_floor.iter().all(|z| *z < 4.0), "{at_floor:?}");
-        let du = increments(&drive);
-        let u2 = centred(&du.iter().map(|v| v * v).collect::<Vec<f64>>());
+        let u2 = centred_squares(&increments(&drive));
         let rms = (u2.iter().map(|v| v * v).sum::<f64>() / n as f64).sqrt();
         // A fifth of the floor's rms.
         let bent: Vec<f64> = floor
@@ -698,6 +713,8 @@ pub(crate) mod tests {
         assert!(z[0] > 20.0, "{z:?}");
         let linear = whiteness(&bent, &drive, FS_HZ);
         assert!(linear[1].z < Z_SIGNIFICANT, "{linear:?}");
+        let all = [nonlinear_correlation(&bent, &drive, FS_HZ), linear].concat();
+        assert!(all.iter().all(|l| !l.is_place()), "{all:?}");
     }
 
     /// Sample rate (Hz) and length of [`wander_on_unit_floor`] and [`record_phases`].
@@ -757,6 +774,8 @@ pub(crate) mod tests {
         }
         let hold = got.iter().find(|l| l.name == "hold").unwrap();
         assert!(hold.significant, "{hold:?}");
+        // Phases are places: a significant one makes the residual structured.
+        assert!(got.iter().all(|l| l.is_place()), "{got:?}");
         assert!((hold.power_ratio - 1.18).abs() < 0.05, "{hold:?}");
         // The pull-off's window is judged on the whole residual, wander and offset both.
         let pull = got.iter().find(|l| l.name == "pull_off").unwrap();

@@ -1733,9 +1733,9 @@ pub fn diagnose_observed(
     for (e, d, _) in screened_only(&screened, &refitted) {
         reports.push(unrefitted(*e, *d, None));
     }
-    let weighed: Vec<Effect> = Effect::ALL
-        .into_iter()
-        .filter(|e| reports.iter().any(|r| r.id == e.id()))
+    let weighed: Vec<Effect> = reports
+        .iter()
+        .filter_map(|r| Effect::from_id(r.id))
         .collect();
     for (e, why) in not_evaluated(&weighed, base_position) {
         reports.push(unrefitted(e, 0.0, Some(why)));
@@ -1887,11 +1887,8 @@ pub fn diagnose_observed(
     // whiteness statistic is reported but not used here: below the floor's lowest measured
     // frequency it cannot tell slow noise from slow physics.
     let structured = |locs: &[Location]| {
-        locs.iter().any(|l| {
-            l.significant
-                && l.z > 2.0 * locate::Z_SIGNIFICANT
-                && (l.domain == "time" || l.domain == "frequency")
-        })
+        locs.iter()
+            .any(|l| l.significant && l.z > 2.0 * locate::Z_SIGNIFICANT && l.is_place())
     };
     let verdict = if chosen.is_some() {
         Verdict::Mismatch
@@ -4287,7 +4284,7 @@ mod tests {
             .locations_before
             .iter()
             .filter(strong)
-            .filter(|l| l.domain == "time" || l.domain == "frequency")
+            .filter(|l| l.is_place())
             .filter(|l| l.name != "excitation" && !(l.from <= 330.0 && l.to >= 330.0))
             .collect();
         assert!(elsewhere.is_empty(), "{elsewhere:#?}");
@@ -5009,8 +5006,8 @@ mod tests {
             .collect();
         assert_eq!(super::drive_steps(&step, block), [5180, 11030]);
         let (multisine, _) = protocol_drive(FS_HZ);
-        let block_ms = (multisine.len() / 60).max(20);
-        assert!(super::drive_steps(&multisine, block_ms).is_empty());
+        let multisine_block = (multisine.len() / 60).max(20);
+        assert!(super::drive_steps(&multisine, multisine_block).is_empty());
         let ramp: Vec<f64> = (0..n).map(|k| k as f64).collect();
         assert!(super::drive_steps(&ramp, block).is_empty());
         // A height sensor's reading: a ramp under noise (a hash of the index, ±0.5).

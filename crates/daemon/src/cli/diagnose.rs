@@ -506,7 +506,7 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
     let significant = |place: bool| {
         d.locations_before
             .iter()
-            .filter(move |l| l.significant && is_place(l) == place)
+            .filter(move |l| l.significant && l.is_place() == place)
     };
     let places: Vec<_> = significant(true).take(8).collect();
     let statistics: Vec<_> = significant(false).take(6).collect();
@@ -519,7 +519,7 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
     let left: Vec<_> = d
         .locations_after
         .iter()
-        .filter(|l| l.significant && (l.domain == "time" || l.domain == "frequency"))
+        .filter(|l| l.significant && l.is_place())
         .collect();
     if !sig.is_empty() && !left.is_empty() {
         println!("still above the floor after the added physics:");
@@ -548,12 +548,6 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
             );
         }
     }
-}
-
-/// Whether a location is a place in the record (a phase or a band) rather than a statistic of
-/// the whole residual (whiteness, correlations, the periods' parts).
-fn is_place(l: &viscoprobe_core::diagnose::locate::Location) -> bool {
-    l.domain == "time" || l.domain == "frequency"
 }
 
 /// One location as a line of the report: its span in s or Hz, and its level — power over the
@@ -1085,8 +1079,7 @@ mod tests {
         assert_eq!(judged(vec![]), "refits judged: none beats the nominal twin");
     }
 
-    /// A correlation prints as the correlation, a phase as its power over the floor; phases
-    /// and bands are places, the statistics of the whole residual are not.
+    /// A correlation prints as the correlation, a phase as its power over the floor.
     #[test]
     fn a_location_prints_its_level_in_its_own_terms() {
         use viscoprobe_core::diagnose::locate::Location;
@@ -1100,7 +1093,6 @@ mod tests {
             significant: true,
         };
         let phase = at("time", "hold", 2.5);
-        assert!(is_place(&phase));
         assert_eq!(
             location_line(&phase),
             "time                  hold                                               0.500–1.250     s  power ×2.50, z 12.3"
@@ -1110,14 +1102,11 @@ mod tests {
             "drive increments², lag -3 samples",
             -0.18,
         );
-        assert!(!is_place(&nonlinear));
         assert!(
             location_line(&nonlinear).ends_with("s  r -0.180, z 12.3"),
             "{}",
             location_line(&nonlinear)
         );
-        assert!(!is_place(&at("periods", "shared by all 5 periods", 3.0)));
-        assert!(is_place(&at("frequency", "excited_lines", 3.0)));
     }
 
     /// Retardation times print in ms down to 0.1 ms and in µs below, never as "0.000 ms".
