@@ -524,7 +524,35 @@ pub struct DriveSpectrum {
     step: f64,
     bins: Vec<rustfft::num_complex::Complex<f64>>,
     inverse: std::sync::Arc<dyn rustfft::Fft<f64>>,
+    /// The drives filtered last, by their mode's frequency and Q (bits), newest last.
+    filtered: std::sync::Mutex<Vec<(ModeKey, std::sync::Arc<Vec<f64>>)>>,
 }
+
+/// The drive a twin receives ([`Problem::twin_drive`]): the recorded one, or the recorded one
+/// through the nominal actuator's mode, shared with the simulations that asked for the same.
+pub(crate) enum TwinDrive<'a> {
+    Recorded(&'a [f64]),
+    Filtered(std::sync::Arc<Vec<f64>>),
+}
+
+impl std::ops::Deref for TwinDrive<'_> {
+    type Target = [f64];
+
+    fn deref(&self) -> &[f64] {
+        match self {
+            TwinDrive::Recorded(d) => d,
+            TwinDrive::Filtered(d) => d,
+        }
+    }
+}
+
+/// A mode as [`DriveSpectrum::through`] reads it, with the sample rate: to the bit.
+type ModeKey = (u64, u64, u64);
+
+/// How many filtered drives [`DriveSpectrum`] keeps: a Jacobian's columns mostly share their
+/// point's mode (only the actuator's lag and damping move it), and up to a dozen fits run side
+/// by side, each with a mode of its own.
+const FILTERED_KEPT: usize = 32;
 
 impl std::fmt::Debug for DriveSpectrum {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -557,11 +585,48 @@ impl DriveSpectrum {
             step,
             bins,
             inverse: planner.plan_fft_inverse(n),
+            filtered: Default::default(),
         }
     }
 
     /// The drive through `mode`, at `fs_hz`.
-    pub(crate) fn through(&self, mode: &ResonantMode, fs_hz: f64) -> Vec<f64> {
+    ///
+    /// Kept for the modes met last ([`FILTERED_KEPT`]), and handed out again for the same
+    /// mode to the bit: the same arithmetic on the same numbers, so every simulation reads
+    /// the drive it read before. Filtering afresh for every simulation took a tenth or more of
+    /// a diagnosis's time, nearly all of it for modes filtered a moment before: a Jacobian's
+    /// columns share their point's mode but for the lag's and the damping's, and most refits
+    /// hold both. Kept (2026-11-29): an independent simulator's hysteresis record (20 000
+    /// samples) from 58–64 s of CPU time to 51–53 s (wall 32–35 s to 29 s); the concealed
+    /// corpus's seed 1 from 566 s to 484 s summed over its 21 cases, its report identical
+    /// but for the times.
+    pub(crate) fn through(&self, mode: &ResonantMode, fs_hz: f64) -> std::sync::Arc<Vec<f64>> {
+        let key = (mode.freq_hz.to_bits(), mode.q.to_bits(), fs_hz.to_bits());
+        let kept = |filtered: &[(ModeKey, std::sync::Arc<Vec<f64>>)]| {
+            filtered
+                .iter()
+                .rev()
+                .find(|(k, _)| *k == key)
+                .map(|(_, d)| d.clone())
+        };
+        // A poisoned lock (a panic elsewhere while it was held) only loses the cache.
+        if let Some(d) = self.filtered.lock().ok().and_then(|f| kept(&f)) {
+            return d;
+        }
+        let d = std::sync::Arc::new(self.filter(mode, fs_hz));
+        if let Ok(mut f) = self.filtered.lock() {
+            if kept(&f).is_none() {
+                if f.len() == FILTERED_KEPT {
+                    f.remove(0);
+                }
+                f.push((key, d.clone()));
+            }
+        }
+        d
+    }
+
+    /// The drive through `mode`, at `fs_hz`, computed.
+    fn filter(&self, mode: &ResonantMode, fs_hz: f64) -> Vec<f64> {
         use rustfft::num_complex::Complex;
         let n = self.bins.len();
         let w0 = 2.0 * std::f64::consts::PI * mode.freq_hz;
@@ -1289,15 +1354,15 @@ impl Problem {
     /// The drive as the twin of θ receives it. The nominal actuator's dynamics act on the
     /// drive as a band-limited signal (`DriveSpectrum`); the twin's own actuator has only the
     /// candidates' modes.
-    pub(crate) fn twin_drive(&self, spec: &ModelSpec, th: &[f64]) -> std::borrow::Cow<'_, [f64]> {
+    pub(crate) fn twin_drive(&self, spec: &ModelSpec, th: &[f64]) -> TwinDrive<'_> {
         match self.actuator_mode(spec, th) {
             Some(mode) => {
                 let spectrum = self
                     .drive_spectrum
                     .get_or_init(|| DriveSpectrum::new(&self.drive));
-                std::borrow::Cow::Owned(spectrum.through(&mode, self.fs_hz))
+                TwinDrive::Filtered(spectrum.through(&mode, self.fs_hz))
             }
-            None => std::borrow::Cow::Borrowed(&self.drive),
+            None => TwinDrive::Recorded(&self.drive),
         }
     }
 
@@ -1944,6 +2009,59 @@ mod tests {
             let expect = 3.0 + 0.01 * (k as f64 - a1 * fs);
             assert!((y - expect).abs() < 1e-9, "sample {k}: {y} vs {expect}");
         }
+    }
+
+    /// A filtered drive is handed out again only for the same mode and sample rate, to the
+    /// bit, and is then the drive computed afresh: through more modes than are kept, back and
+    /// forth, with modes that differ in one of frequency, Q or sample rate alone.
+    #[test]
+    fn a_kept_drive_is_the_drive_of_its_own_mode() {
+        let (fs, n) = (8000.0, 3000);
+        let drive: Vec<f64> = (0..n)
+            .map(|k| (0.01 * k as f64).sin() + 0.3 * (0.37 * k as f64).cos() + 1e-3 * k as f64)
+            .collect();
+        let spectrum = DriveSpectrum::new(&drive);
+        let modes: Vec<(ResonantMode, f64)> = (0..FILTERED_KEPT + 8)
+            .map(|i| {
+                let m = nominal_actuator_mode(0.2 + 0.05 * i as f64, 0.5, fs).unwrap();
+                (m, fs)
+            })
+            .collect();
+        let base = modes[0].0;
+        let other_q = ResonantMode {
+            q: base.q * (1.0 + f64::EPSILON),
+            ..base
+        };
+        let other_f = ResonantMode {
+            freq_hz: base.freq_hz * (1.0 + f64::EPSILON),
+            ..base
+        };
+        let asked: Vec<(ResonantMode, f64)> = modes
+            .iter()
+            .copied()
+            .chain(modes.iter().rev().copied())
+            .chain([
+                (base, fs),
+                (other_q, fs),
+                (other_f, fs),
+                (base, 2.0 * fs),
+                (base, fs),
+            ])
+            .collect();
+        for (k, (mode, rate)) in asked.iter().enumerate() {
+            let got = spectrum.through(mode, *rate);
+            let fresh = spectrum.filter(mode, *rate);
+            assert!(
+                got.iter()
+                    .zip(&fresh)
+                    .all(|(a, b)| a.to_bits() == b.to_bits()),
+                "request {k}: a kept drive of another mode"
+            );
+        }
+        // Asked twice in a row, the second is the first, not computed again.
+        let first = spectrum.through(&base, fs);
+        assert!(std::sync::Arc::ptr_eq(&first, &spectrum.through(&base, fs)));
+        assert!(spectrum.filtered.lock().unwrap().len() <= FILTERED_KEPT);
     }
 
     #[test]
