@@ -554,6 +554,15 @@ type ModeKey = (u64, u64, u64);
 /// by side, each with a mode of its own.
 const FILTERED_KEPT: usize = 32;
 
+/// The most memory the kept drives may take: a long record keeps fewer of them.
+const FILTERED_BYTES: usize = 64 << 20;
+
+/// How many filtered drives of `n` samples are kept: [`FILTERED_KEPT`], fewer where they
+/// would take more than [`FILTERED_BYTES`], and always one.
+fn filtered_kept(n: usize) -> usize {
+    (FILTERED_BYTES / (std::mem::size_of::<f64>() * n.max(1))).clamp(1, FILTERED_KEPT)
+}
+
 impl std::fmt::Debug for DriveSpectrum {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("DriveSpectrum")
@@ -591,7 +600,7 @@ impl DriveSpectrum {
 
     /// The drive through `mode`, at `fs_hz`.
     ///
-    /// Kept for the modes met last ([`FILTERED_KEPT`]), and handed out again for the same
+    /// Kept for the modes met last ([`filtered_kept`]), and handed out again for the same
     /// mode to the bit: the same arithmetic on the same numbers, so every simulation reads
     /// the drive it read before. Filtering afresh for every simulation took a tenth or more of
     /// a diagnosis's time, nearly all of it for modes filtered a moment before: a Jacobian's
@@ -616,7 +625,7 @@ impl DriveSpectrum {
         let d = std::sync::Arc::new(self.filter(mode, fs_hz));
         if let Ok(mut f) = self.filtered.lock() {
             if kept(&f).is_none() {
-                if f.len() == FILTERED_KEPT {
+                if f.len() >= filtered_kept(self.bins.len()) {
                     f.remove(0);
                 }
                 f.push((key, d.clone()));
@@ -2061,7 +2070,11 @@ mod tests {
         // Asked twice in a row, the second is the first, not computed again.
         let first = spectrum.through(&base, fs);
         assert!(std::sync::Arc::ptr_eq(&first, &spectrum.through(&base, fs)));
-        assert!(spectrum.filtered.lock().unwrap().len() <= FILTERED_KEPT);
+        assert_eq!(spectrum.filtered.lock().unwrap().len(), FILTERED_KEPT);
+        // A long record keeps fewer: 64 MiB of them, and always one.
+        assert_eq!(filtered_kept(20_000), FILTERED_KEPT);
+        assert_eq!(filtered_kept(2_000_000), 4);
+        assert_eq!(filtered_kept(100_000_000), 1);
     }
 
     #[test]
