@@ -524,7 +524,8 @@ pub struct DriveSpectrum {
     step: f64,
     bins: Vec<rustfft::num_complex::Complex<f64>>,
     inverse: std::sync::Arc<dyn rustfft::Fft<f64>>,
-    /// The drives filtered last, by their mode's frequency and Q (bits), newest last.
+    /// The drives filtered last, by their mode's frequency and Q and the sample rate (bits),
+    /// newest last.
     filtered: std::sync::Mutex<Vec<(ModeKey, std::sync::Arc<Vec<f64>>)>>,
 }
 
