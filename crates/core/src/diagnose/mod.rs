@@ -1056,11 +1056,13 @@ pub fn diagnose_observed(
     // The concealed corpus's seed 1 gave the same names, verdicts and final χ² (to 1e-9):
     // none of its first fits ended between the two tests. Not reproduced on this twin, so
     // the unit test pins the rule with that record's numbers
-    // (`a_first_nominal_fit_sixteen_percent_above_the_floor_is_not_at_it`): a stage mode of Q 1.03 at 0.9 of the sample rate over a third
-    // term of 8 % at 6.4 samples, on `nominal_twin` 16 and 17, either gave a nominal fit at
-    // the floor from the first start (the mode applied to the drive as the diagnosis does)
-    // or named a resonance from every start alike (the mode discretised in the twin, which
-    // the band-limited nominal cannot follow exactly; `DriveSpectrum`).
+    // (`a_first_nominal_fit_sixteen_percent_above_the_floor_is_not_at_it`): a stage mode of
+    // Q 1.03 at 0.9 of the sample rate over a third term of 8 % at 6.4 samples, on
+    // `nominal_twin` 16 and 17, either gave a nominal fit at the floor from the first start
+    // (the mode applied to the drive as the diagnosis does) or named a resonance from every
+    // start alike (the mode discretised in the twin, which the band-limited nominal cannot
+    // follow exactly; `DriveSpectrum`).
+    // The train samples, counted once: `problem` is reweighted below, its samples never.
     let n_train = problem.train.len();
     let n_tr = n_train as f64;
     let train_at_floor = |f: &Fitted| at_floor(f.eval.chi2_train, n_train, &noise);
@@ -1101,11 +1103,10 @@ pub fn diagnose_observed(
         best_lag_reads: Default::default(),
     };
     let nominal_from_reference_lag = |problem: &Problem, nom: &Fitted| -> Option<Fitted> {
-        let n_train = problem.train.len() as f64;
         let w = references.of(problem, nom, fan)?;
         let lag = nominal.actuator_lag();
         let (best, gain) = reference_lag(problem, &w, nom, fan)?;
-        let pays = gain > n_train.ln();
+        let pays = gain > n_tr.ln();
         if !pays || (best - nom.theta[lag]).abs() < REFERENCE_LAG_MOVE_SAMPLES {
             return None;
         }
@@ -1124,7 +1125,7 @@ pub fn diagnose_observed(
     // a differentiator where the free lever drifts — would hide every level and plateau of
     // that misfit: on the shared JPK gel the long adhesive pull of the retract counted for
     // less than the edges around it. Such a recording is weighted equally instead.
-    let gross = nom.eval.chi2_train / problem.train.len() as f64 > GROSS_MISFIT;
+    let gross = nom.eval.chi2_train / n_tr > GROSS_MISFIT;
     if gross && problem.weighting() == Weighting::Whitened {
         problem.weigh_equally(noise.sigma_v);
         nom = fit_nominal(&problem)?;
@@ -1143,7 +1144,7 @@ pub fn diagnose_observed(
         * 1e9;
     let sims_nominal = problem.simulations();
     observe(Progress::NominalFitted {
-        chi2_per_sample: nom.eval.chi2_train / problem.train.len() as f64,
+        chi2_per_sample: nom.eval.chi2_train / n_tr,
         simulations: sims_nominal,
     });
     let phases = locate::phases(

@@ -607,9 +607,10 @@ impl DriveSpectrum {
     /// a diagnosis's time, nearly all of it for modes filtered a moment before: a Jacobian's
     /// columns share their point's mode but for the lag's and the damping's, and most refits
     /// hold both. Kept (2026-11-29): an independent simulator's hysteresis record (20 000
-    /// samples) from 58–64 s of CPU time to 51–53 s (wall 32–35 s to 29 s); the concealed
-    /// corpus's seed 1 from 566 s to 484 s summed over its 21 cases, its report identical
-    /// but for the times.
+    /// samples) from 58–64 s of CPU time to 51–53 s, and run back to back with the old
+    /// binary when the machine was slower, 63.3 s to 58.2 s (wall 35.1 s to 32.6 s); the
+    /// concealed corpus's seed 1 from 566 s to 484 s summed over its 21 cases, its report
+    /// identical but for the times.
     pub(crate) fn through(&self, mode: &ResonantMode, fs_hz: f64) -> std::sync::Arc<Vec<f64>> {
         let key = (mode.freq_hz.to_bits(), mode.q.to_bits(), fs_hz.to_bits());
         let kept = |filtered: &[(ModeKey, std::sync::Arc<Vec<f64>>)]| {
