@@ -673,6 +673,13 @@ impl ShapeFunction {
         }
     }
 
+    /// Whether an evaluation leaves anything behind: a blunted cone keeps the point it last
+    /// solved for as the next solve's start, so the order of its evaluations moves its
+    /// results in their last bits. Every other tip's evaluations are pure.
+    pub fn keeps_a_start(&self) -> bool {
+        self.blunted.is_some()
+    }
+
     /// Forgets the last point (a twin settling afresh starts as a new one would).
     pub fn forget(&self) {
         self.last.set(None);
@@ -740,16 +747,35 @@ pub fn decreasing_root(
 /// asking `g_and_slope` for it again cost a third of its contact solve.
 pub fn decreasing_root_and_slope(
     g_and_slope: impl Fn(f64) -> (f64, f64),
-    (mut lo, mut hi): (f64, f64),
+    (lo, hi): (f64, f64),
     x0: f64,
     tol: f64,
     max_iter: usize,
 ) -> (f64, f64) {
-    let mut d = x0.clamp(lo, hi);
-    let mut last_slope = 0.0;
-    for _ in 0..max_iter {
-        let (gd, slope) = g_and_slope(d);
-        last_slope = slope;
+    let start = x0.clamp(lo, hi);
+    if max_iter == 0 {
+        return (start, 0.0);
+    }
+    let first = g_and_slope(start);
+    decreasing_root_and_slope_from(g_and_slope, (lo, hi), start, first, tol, max_iter)
+}
+
+/// [`decreasing_root_and_slope`] from a start `start` within the bracket whose evaluation
+/// `first = g_and_slope(start)` the caller already holds: the same steps, one evaluation
+/// fewer. The twin evaluates its start to learn whether a contact still holds
+/// (`Twin::solve_soft`), and then solves from it.
+pub fn decreasing_root_and_slope_from(
+    g_and_slope: impl Fn(f64) -> (f64, f64),
+    (mut lo, mut hi): (f64, f64),
+    start: f64,
+    first: (f64, f64),
+    tol: f64,
+    max_iter: usize,
+) -> (f64, f64) {
+    let mut d = start;
+    let (mut gd, mut slope) = first;
+    let mut steps = 0;
+    loop {
         if gd > 0.0 {
             lo = d;
         } else {
@@ -761,11 +787,12 @@ pub fn decreasing_root_and_slope(
         }
         let step = (next - d).abs();
         d = next;
-        if step <= tol || hi - lo <= tol {
-            break;
+        steps += 1;
+        if step <= tol || hi - lo <= tol || steps >= max_iter {
+            return (d, slope);
         }
+        (gd, slope) = g_and_slope(d);
     }
-    (d, last_slope)
 }
 
 #[cfg(test)]
