@@ -126,14 +126,33 @@ pub struct Location {
     pub domain: &'static str,
     /// Phase name, band name (`excited_lines`, `mains_lines`, `band`), or statistic.
     pub name: String,
-    /// Time window, s (time domain), or frequency band, Hz (frequency domain).
+    /// Its span, in [`Location::span_unit`]: a time window (s) or a frequency band (Hz); for a
+    /// correlation the lag (s), for whiteness the lags tested (s).
     pub from: f64,
     pub to: f64,
-    /// Residual power relative to the noise floor (1 = at the floor).
+    /// Its level, in the terms `level` names: the residual's power relative to the noise
+    /// floor (1 = at the floor), a correlation, or Ljung–Box's Q per lag. (The name is the
+    /// JSON report's since before the correlations were located.)
     pub power_ratio: f64,
+    /// What `power_ratio` measures.
+    pub level: Level,
     /// Significance in standard deviations of the floor's own scatter.
     pub z: f64,
     pub significant: bool,
+}
+
+/// What a [`Location`]'s level (`power_ratio`) measures, so that a report names it rightly:
+/// a power ratio, a correlation and Ljung–Box's statistic read on different scales.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Level {
+    /// The residual's power over the noise floor's (1: at the floor): a phase, a band, the
+    /// periods' shared part or their variation.
+    PowerOverFloor,
+    /// A correlation coefficient r, −1 to 1 (0: none): against the input or its square.
+    Correlation,
+    /// Ljung–Box's Q over the lags tested, per lag (1: white, as its mean under the floor).
+    LjungBoxPerLag,
 }
 
 impl Location {
@@ -142,6 +161,16 @@ impl Location {
     /// periods' parts). Only places make a residual structured (the verdict's rule).
     pub fn is_place(&self) -> bool {
         self.domain == "time" || self.domain == "frequency"
+    }
+
+    /// The unit of `from` and `to`: Hz for a band in frequency, s for every other span (a
+    /// window in time, a lag, the periods' stretch).
+    pub fn span_unit(&self) -> &'static str {
+        if self.domain == "frequency" {
+            "Hz"
+        } else {
+            "s"
+        }
     }
 }
 
@@ -194,6 +223,7 @@ pub fn in_time(
                 from: p.start as f64 / fs_hz,
                 to: p.end as f64 / fs_hz,
                 power_ratio: chi2 / n,
+                level: Level::PowerOverFloor,
                 z,
                 significant: z > Z_SIGNIFICANT,
             }
@@ -350,6 +380,7 @@ pub fn in_frequency(
             from: f_lo,
             to: f_hi,
             power_ratio: power / expected,
+            level: Level::PowerOverFloor,
             z,
             significant: z > Z_SIGNIFICANT,
         });
@@ -464,6 +495,7 @@ pub fn whiteness(e: &[f64], drive: &[f64], fs_hz: f64) -> Vec<Location> {
             from: 1.0 / fs_hz,
             to: lags as f64 / fs_hz,
             power_ratio: q / lags as f64,
+            level: Level::LjungBoxPerLag,
             z: zq,
             significant: zq > Z_SIGNIFICANT,
         },
@@ -537,6 +569,7 @@ fn correlation_location(
         from: lag as f64 / fs_hz,
         to: lag as f64 / fs_hz,
         power_ratio: r,
+        level: Level::Correlation,
         z,
         significant: z > Z_SIGNIFICANT,
     }
@@ -618,6 +651,7 @@ pub fn periods(
             from,
             to,
             power_ratio: chi2 / dof,
+            level: Level::PowerOverFloor,
             z,
             significant: z > Z_SIGNIFICANT,
         }
@@ -637,6 +671,55 @@ pub(crate) mod tests {
     use super::*;
     use rand::{rngs::StdRng, SeedableRng};
     use rand_distr::{Distribution, StandardNormal};
+
+    /// Each locator says what its level measures: the whiteness statistic is Q per lag and
+    /// the correlations are correlations, never a power over the floor, which the phases,
+    /// bands and periods are; and only a band spans Hz.
+    #[test]
+    fn each_location_names_what_its_level_measures() {
+        let fs = 1000.0;
+        let n = 4000;
+        let mut rng = StdRng::seed_from_u64(5);
+        let e: Vec<f64> = (0..n).map(|_| StandardNormal.sample(&mut rng)).collect();
+        let drive: Vec<f64> = (0..n).map(|k| (k as f64 * 0.05).sin()).collect();
+        let white = whiteness(&e, &drive, fs);
+        let levels: Vec<(&str, Level)> = white.iter().map(|l| (l.domain, l.level)).collect();
+        assert_eq!(
+            levels,
+            [
+                ("whiteness", Level::LjungBoxPerLag),
+                ("input_correlation", Level::Correlation)
+            ]
+        );
+        for l in nonlinear_correlation(&e, &drive, fs) {
+            assert_eq!(l.level, Level::Correlation, "{l:?}");
+        }
+        let run = PeriodicRun {
+            start: 0,
+            period_samples: 1000,
+            periods: 4,
+        };
+        let parts = periods(&e, run, fs, None);
+        assert_eq!(parts.len(), 2);
+        let bands = in_frequency(&e, &drive, (0, n), fs, 20.0);
+        assert!(!bands.is_empty());
+        let hold = Phase {
+            name: "hold",
+            start: 0,
+            end: 2000,
+        };
+        let phases = in_time(&e, &[hold], fs, None);
+        assert_eq!(phases.len(), 1);
+        for l in parts.iter().chain(&bands).chain(&phases) {
+            assert_eq!(l.level, Level::PowerOverFloor, "{l:?}");
+        }
+        assert!(bands.iter().all(|l| l.span_unit() == "Hz"));
+        assert!(white
+            .iter()
+            .chain(&parts)
+            .chain(&phases)
+            .all(|l| l.span_unit() == "s"));
+    }
 
     /// On the floor alone both parts of a repeated excitation's residual are at the floor; a
     /// misfit the same in every period shows as shared and not as variation, a burst in one

@@ -550,14 +550,15 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
     }
 }
 
-/// One location as a line of the report: its span in s or Hz, and its level — power over the
-/// floor, or for a correlation the correlation itself.
+/// One location as a line of the report: its span in s or Hz, and its level in its own
+/// terms — power over the floor, a correlation, or Ljung–Box's Q per lag.
 fn location_line(l: &viscoprobe_core::diagnose::locate::Location) -> String {
-    let unit = if l.domain == "frequency" { "Hz" } else { "s" };
-    let level = if l.domain.ends_with("correlation") {
-        format!("r {:+.3}", l.power_ratio)
-    } else {
-        format!("power ×{:.2}", l.power_ratio)
+    use viscoprobe_core::diagnose::locate::Level;
+    let unit = l.span_unit();
+    let level = match l.level {
+        Level::PowerOverFloor => format!("power ×{:.2}", l.power_ratio),
+        Level::Correlation => format!("r {:+.3}", l.power_ratio),
+        Level::LjungBoxPerLag => format!("Q/lag {:.2}", l.power_ratio),
     };
     format!(
         "{:<21} {:<46} {:>9.3}–{:<9.3} {unit}  {level}, z {:.1}",
@@ -1079,33 +1080,53 @@ mod tests {
         assert_eq!(judged(vec![]), "refits judged: none beats the nominal twin");
     }
 
-    /// A correlation prints as the correlation, a phase as its power over the floor.
+    /// A correlation prints as the correlation, whiteness as Ljung–Box's Q per lag, a phase
+    /// as its power over the floor; a band's span in Hz, every other span in s.
     #[test]
     fn a_location_prints_its_level_in_its_own_terms() {
-        use viscoprobe_core::diagnose::locate::Location;
-        let at = |domain: &'static str, name: &str, power_ratio: f64| Location {
+        use viscoprobe_core::diagnose::locate::{Level, Location};
+        let at = |domain: &'static str, name: &str, power_ratio: f64, level: Level| Location {
             domain,
             name: name.into(),
             from: 0.5,
             to: 1.25,
             power_ratio,
+            level,
             z: 12.34,
             significant: true,
         };
-        let phase = at("time", "hold", 2.5);
+        let phase = at("time", "hold", 2.5, Level::PowerOverFloor);
         assert_eq!(
             location_line(&phase),
             "time                  hold                                               0.500–1.250     s  power ×2.50, z 12.3"
+        );
+        let band = at("frequency", "band 35–69 Hz", 2.61, Level::PowerOverFloor);
+        assert!(
+            location_line(&band).ends_with("Hz  power ×2.61, z 12.3"),
+            "{}",
+            location_line(&band)
         );
         let nonlinear = at(
             "nonlinear_correlation",
             "drive increments², lag -3 samples",
             -0.18,
+            Level::Correlation,
         );
         assert!(
             location_line(&nonlinear).ends_with("s  r -0.180, z 12.3"),
             "{}",
             location_line(&nonlinear)
+        );
+        let white = at(
+            "whiteness",
+            "ljung_box_20_lags",
+            7347.84,
+            Level::LjungBoxPerLag,
+        );
+        assert!(
+            location_line(&white).ends_with("s  Q/lag 7347.84, z 12.3"),
+            "{}",
+            location_line(&white)
         );
     }
 
