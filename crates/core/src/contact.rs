@@ -762,8 +762,9 @@ pub fn decreasing_root_and_slope(
 
 /// [`decreasing_root_and_slope`] from a start `start` within the bracket whose evaluation
 /// `first = g_and_slope(start)` the caller already holds: the same steps, one evaluation
-/// fewer. The twin evaluates its start to learn whether a contact still holds
-/// (`Twin::solve_soft`), and then solves from it.
+/// fewer (and at least the one step `first` pays for, whatever `max_iter`). The twin
+/// evaluates its start to learn whether a contact still holds (`Twin::solve_soft`), and then
+/// solves from it.
 pub fn decreasing_root_and_slope_from(
     g_and_slope: impl Fn(f64) -> (f64, f64),
     (mut lo, mut hi): (f64, f64),

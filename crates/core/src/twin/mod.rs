@@ -865,9 +865,10 @@ impl Twin {
             // 10⁻⁶ Pa⁻¹, 64 more simulations) for a time gain lost in the run-to-run spread.
             // Starting instead from the last root moved by a first-order prediction (its
             // slope and the changes of the gap, β and F_net since) was tried too
-            // (2026-11-29): 2.84 evaluations per solve in place of 4.45, the three-seed
-            // corpus 15 % faster in wall time, but every fit moved, and the chosen model was
-            // at the floor on only 47 of 53 effect cases, below the acceptance test's 48.
+            // (2026-11-29): 2.84 evaluations per contact sample in place of 3.45, the
+            // three-seed corpus about 15 % faster in wall time, but every fit moved, and the
+            // chosen model was at the floor on only 47 of 53 effect cases, below the
+            // acceptance test's 48.
             let tol = 1e-14 * (1.0 + gap_m.abs());
             let (d, slope) = match at_start {
                 Some((start, first)) => {
