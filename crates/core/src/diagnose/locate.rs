@@ -121,38 +121,89 @@ pub fn phases(
 /// One located mismatch.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Location {
-    /// `time`, `frequency`, `whiteness`, `input_correlation`, `nonlinear_correlation` or
-    /// `periods`.
-    pub domain: &'static str,
+    pub domain: Domain,
     /// Phase name, band name (`excited_lines`, `mains_lines`, `band`), or statistic.
     pub name: String,
-    /// Its span, in [`Location::span_unit`]: a time window (s) or a frequency band (Hz); for a
+    /// Its span, in [`Domain::span_unit`]: a time window (s) or a frequency band (Hz); for a
     /// correlation the lag (s), for whiteness the lags tested (s).
     pub from: f64,
     pub to: f64,
-    /// Its level, in the terms `level` names: the residual's power relative to the noise
-    /// floor (1 = at the floor), a correlation, or Ljung–Box's Q per lag. (The name is the
-    /// JSON report's since before the correlations were located.)
+    /// Its level, on the scale [`Domain::level`] names: the residual's power relative to the
+    /// noise floor (1 = at the floor), a correlation, or Ljung–Box's Q per lag. (The name is
+    /// the JSON report's since before the statistics were located.)
     pub power_ratio: f64,
-    /// What `power_ratio` measures.
-    pub level: Level,
     /// Significance in standard deviations of the floor's own scatter.
     pub z: f64,
     pub significant: bool,
 }
 
-/// What a [`Location`]'s level (`power_ratio`) measures, so that a report names it rightly:
-/// a power ratio, a correlation and Ljung–Box's statistic read on different scales.
+/// Where, or by which statistic, a [`Location`] was found. It fixes what its level measures
+/// and the unit of its span, so that a report reads neither from a name.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
+pub enum Domain {
+    /// A phase of the record ([`in_time`]).
+    Time,
+    /// A band of the spectrum ([`in_frequency`]).
+    Frequency,
+    /// Ljung–Box over the first lags ([`whiteness`]).
+    Whiteness,
+    /// The largest correlation with the drive's increments ([`whiteness`]).
+    InputCorrelation,
+    /// Billings and Voon's higher-order correlations ([`nonlinear_correlation`]).
+    NonlinearCorrelation,
+    /// The parts of a repeated excitation's residual ([`periods`]).
+    Periods,
+}
+
+/// What a [`Location`]'s level (`power_ratio`) measures: a power ratio, a correlation and
+/// Ljung–Box's statistic read on different scales.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Level {
-    /// The residual's power over the noise floor's (1: at the floor): a phase, a band, the
-    /// periods' shared part or their variation.
+    /// The residual's power over the noise floor's (1: at the floor).
     PowerOverFloor,
-    /// A correlation coefficient r, −1 to 1 (0: none): against the input or its square.
+    /// A correlation coefficient r, −1 to 1 (0: none).
     Correlation,
     /// Ljung–Box's Q over the lags tested, per lag (1: white, as its mean under the floor).
     LjungBoxPerLag,
+}
+
+impl Domain {
+    /// Its name in the report and the JSON.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Domain::Time => "time",
+            Domain::Frequency => "frequency",
+            Domain::Whiteness => "whiteness",
+            Domain::InputCorrelation => "input_correlation",
+            Domain::NonlinearCorrelation => "nonlinear_correlation",
+            Domain::Periods => "periods",
+        }
+    }
+
+    /// What a location's `power_ratio` measures here.
+    pub fn level(self) -> Level {
+        match self {
+            Domain::Time | Domain::Frequency | Domain::Periods => Level::PowerOverFloor,
+            Domain::InputCorrelation | Domain::NonlinearCorrelation => Level::Correlation,
+            Domain::Whiteness => Level::LjungBoxPerLag,
+        }
+    }
+
+    /// The unit of a location's `from` and `to`: Hz for a band, s for every other span (a
+    /// window in time, a lag, the periods' stretch).
+    pub fn span_unit(self) -> &'static str {
+        match self {
+            Domain::Frequency => "Hz",
+            _ => "s",
+        }
+    }
+}
+
+impl std::fmt::Display for Domain {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.pad(self.as_str())
+    }
 }
 
 impl Location {
@@ -160,17 +211,7 @@ impl Location {
     /// rather than a statistic of the whole residual (whiteness, the correlations, the
     /// periods' parts). Only places make a residual structured (the verdict's rule).
     pub fn is_place(&self) -> bool {
-        self.domain == "time" || self.domain == "frequency"
-    }
-
-    /// The unit of `from` and `to`: Hz for a band in frequency, s for every other span (a
-    /// window in time, a lag, the periods' stretch).
-    pub fn span_unit(&self) -> &'static str {
-        if self.domain == "frequency" {
-            "Hz"
-        } else {
-            "s"
-        }
+        matches!(self.domain, Domain::Time | Domain::Frequency)
     }
 }
 
@@ -218,12 +259,11 @@ pub fn in_time(
             let chi2: f64 = r[p.start..p.end].iter().map(|v| v * v).sum();
             let z = (chi2 - n) / (2.0 * n).sqrt();
             Location {
-                domain: "time",
+                domain: Domain::Time,
                 name: p.name.into(),
                 from: p.start as f64 / fs_hz,
                 to: p.end as f64 / fs_hz,
                 power_ratio: chi2 / n,
-                level: Level::PowerOverFloor,
                 z,
                 significant: z > Z_SIGNIFICANT,
             }
@@ -375,12 +415,11 @@ pub fn in_frequency(
         let f_lo = *bins.first().unwrap_or(&0) as f64 * df;
         let f_hi = *bins.last().unwrap_or(&0) as f64 * df;
         out.push(Location {
-            domain: "frequency",
+            domain: Domain::Frequency,
             name,
             from: f_lo,
             to: f_hi,
             power_ratio: power / expected,
-            level: Level::PowerOverFloor,
             z,
             significant: z > Z_SIGNIFICANT,
         });
@@ -490,17 +529,16 @@ pub fn whiteness(e: &[f64], drive: &[f64], fs_hz: f64) -> Vec<Location> {
     let (best, best_lag) = largest_correlation(&x, &du);
     vec![
         Location {
-            domain: "whiteness",
+            domain: Domain::Whiteness,
             name: "ljung_box_20_lags".into(),
             from: 1.0 / fs_hz,
             to: lags as f64 / fs_hz,
             power_ratio: q / lags as f64,
-            level: Level::LjungBoxPerLag,
             z: zq,
             significant: zq > Z_SIGNIFICANT,
         },
         correlation_location(
-            "input_correlation",
+            Domain::InputCorrelation,
             "drive increments",
             (best, best_lag),
             n,
@@ -556,7 +594,7 @@ fn largest_correlation(x: &[f64], u: &[f64]) -> (f64, i64) {
 /// A correlation `r` at `lag` over `n` samples as a location: `z = |r|·√n`, the correlation
 /// as its `power_ratio`, the lag (s) as its span.
 fn correlation_location(
-    domain: &'static str,
+    domain: Domain,
     name: &str,
     (r, lag): (f64, i64),
     n: usize,
@@ -569,7 +607,6 @@ fn correlation_location(
         from: lag as f64 / fs_hz,
         to: lag as f64 / fs_hz,
         power_ratio: r,
-        level: Level::Correlation,
         z,
         significant: z > Z_SIGNIFICANT,
     }
@@ -591,7 +628,7 @@ pub fn nonlinear_correlation(e: &[f64], drive: &[f64], fs_hz: f64) -> Vec<Locati
     let u2 = centred_squares(&du);
     let x2 = centred_squares(&x);
     let location = |name: &str, largest: (f64, i64)| {
-        correlation_location("nonlinear_correlation", name, largest, n, fs_hz)
+        correlation_location(Domain::NonlinearCorrelation, name, largest, n, fs_hz)
     };
     vec![
         location("drive increments²", largest_correlation(&x, &u2)),
@@ -646,12 +683,11 @@ pub fn periods(
         let dof = dof * kept;
         let z = (chi2 - dof) / (2.0 * dof).sqrt();
         Location {
-            domain: "periods",
+            domain: Domain::Periods,
             name,
             from,
             to,
             power_ratio: chi2 / dof,
-            level: Level::PowerOverFloor,
             z,
             significant: z > Z_SIGNIFICANT,
         }
@@ -672,9 +708,9 @@ pub(crate) mod tests {
     use rand::{rngs::StdRng, SeedableRng};
     use rand_distr::{Distribution, StandardNormal};
 
-    /// Each locator says what its level measures: the whiteness statistic is Q per lag and
-    /// the correlations are correlations, never a power over the floor, which the phases,
-    /// bands and periods are; and only a band spans Hz.
+    /// Each locator names its domain, and so what its level measures and its span's unit:
+    /// the whiteness statistic is Q per lag and the correlations are correlations, never a
+    /// power over the floor, which the phases, bands and periods are; only a band spans Hz.
     #[test]
     fn each_location_names_what_its_level_measures() {
         let fs = 1000.0;
@@ -682,43 +718,38 @@ pub(crate) mod tests {
         let mut rng = StdRng::seed_from_u64(5);
         let e: Vec<f64> = (0..n).map(|_| StandardNormal.sample(&mut rng)).collect();
         let drive: Vec<f64> = (0..n).map(|k| (k as f64 * 0.05).sin()).collect();
-        let white = whiteness(&e, &drive, fs);
-        let levels: Vec<(&str, Level)> = white.iter().map(|l| (l.domain, l.level)).collect();
-        assert_eq!(
-            levels,
-            [
-                ("whiteness", Level::LjungBoxPerLag),
-                ("input_correlation", Level::Correlation)
-            ]
-        );
-        for l in nonlinear_correlation(&e, &drive, fs) {
-            assert_eq!(l.level, Level::Correlation, "{l:?}");
-        }
         let run = PeriodicRun {
             start: 0,
             period_samples: 1000,
             periods: 4,
         };
-        let parts = periods(&e, run, fs, None);
-        assert_eq!(parts.len(), 2);
-        let bands = in_frequency(&e, &drive, (0, n), fs, 20.0);
-        assert!(!bands.is_empty());
         let hold = Phase {
             name: "hold",
             start: 0,
             end: 2000,
         };
-        let phases = in_time(&e, &[hold], fs, None);
-        assert_eq!(phases.len(), 1);
-        for l in parts.iter().chain(&bands).chain(&phases) {
-            assert_eq!(l.level, Level::PowerOverFloor, "{l:?}");
-        }
-        assert!(bands.iter().all(|l| l.span_unit() == "Hz"));
-        assert!(white
-            .iter()
-            .chain(&parts)
-            .chain(&phases)
-            .all(|l| l.span_unit() == "s"));
+        let found: Vec<Location> = [
+            whiteness(&e, &drive, fs),
+            nonlinear_correlation(&e, &drive, fs),
+            periods(&e, run, fs, None),
+            in_frequency(&e, &drive, (0, n), fs, 20.0),
+            in_time(&e, &[hold], fs, None),
+        ]
+        .concat();
+        let read = |d: Domain| {
+            let of: Vec<_> = found.iter().filter(|l| l.domain == d).collect();
+            assert!(!of.is_empty(), "no {d} location");
+            (of[0].domain.level(), of[0].domain.span_unit(), of.len())
+        };
+        use Level::*;
+        assert_eq!(read(Domain::Whiteness), (LjungBoxPerLag, "s", 1));
+        assert_eq!(read(Domain::InputCorrelation), (Correlation, "s", 1));
+        assert_eq!(read(Domain::NonlinearCorrelation), (Correlation, "s", 2));
+        assert_eq!(read(Domain::Periods), (PowerOverFloor, "s", 2));
+        assert_eq!(read(Domain::Time), (PowerOverFloor, "s", 1));
+        assert_eq!(read(Domain::Frequency).0, PowerOverFloor);
+        assert_eq!(read(Domain::Frequency).1, "Hz");
+        assert_eq!(Domain::InputCorrelation.to_string(), "input_correlation");
     }
 
     /// On the floor alone both parts of a repeated excitation's residual are at the floor; a

@@ -3462,6 +3462,7 @@ mod tests {
     use super::corpus::{
         noise_free, nominal_twin, protocol_drive, simulate, simulate_with_truth, FS_HZ,
     };
+    use super::locate::Domain;
     use super::{
         diagnose, diagnose_observed, find_snap_in, fit_model, locate, reference_lag,
         reference_read_at_best_lag, reference_witness, sensor_parts_from_command, split_train_held,
@@ -4310,7 +4311,7 @@ mod tests {
             .locations_before
             .iter()
             .filter(strong)
-            .find(|l| l.domain == "frequency" && l.from <= 330.0 && l.to >= 330.0);
+            .find(|l| l.domain == Domain::Frequency && l.from <= 330.0 && l.to >= 330.0);
         assert!(band.is_some(), "{:#?}", d.locations_before);
         let excitation = d
             .locations_before
@@ -4678,7 +4679,7 @@ mod tests {
         let periods: Vec<&str> = d
             .locations_before
             .iter()
-            .filter(|l| l.domain == "periods")
+            .filter(|l| l.domain == Domain::Periods)
             .map(|l| l.name.as_str())
             .collect();
         assert_eq!(
@@ -4955,7 +4956,7 @@ mod tests {
         let z = |locations: &[Location], name: &str| {
             locations
                 .iter()
-                .find(|l| l.domain == "time" && l.name == name)
+                .find(|l| l.domain == Domain::Time && l.name == name)
                 .map(|l| l.z)
                 .unwrap_or_else(|| panic!("no {name} in {locations:?}"))
         };
@@ -4974,7 +4975,7 @@ mod tests {
         assert_eq!(z(&rising, "pull_off"), z(&white, "pull_off"));
         let outside_time = |l: &[Location]| -> Vec<(String, f64)> {
             l.iter()
-                .filter(|l| l.domain != "time")
+                .filter(|l| l.domain != Domain::Time)
                 .map(|l| (l.name.clone(), l.z))
                 .collect()
         };

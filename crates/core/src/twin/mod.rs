@@ -816,10 +816,9 @@ impl Twin {
         // Pulled onto the surface with the whole adhesion, the tip indents it where the
         // material, still recovering from an earlier contact, lets it.
         let holds_at_pull_off = || g_and_slope(d_lo).0 >= 0.0 && gap_m - d_lo > 0.0;
-        // The contact solve's bracket and its start, the previous sample's solution.
+        // The contact solve's bracket; it starts from the previous sample's solution.
         let bracket = (d_lo, gap_m.max(d_lo));
-        let start = || self.last_d_m.clamp(bracket.0, bracket.1);
-        // `g` at the start, when it was needed to see that a contact holds (below).
+        // The start and `g` there, when they were needed to see that a contact holds (below).
         let mut at_start = None;
         let (touching, free) = if self.in_contact {
             // Whether a contact holds is `g(d_lo) ≥ 0`: one shape evaluation on every sample
@@ -834,7 +833,7 @@ impl Twin {
             // A blunted cone's evaluations move its next start, so it keeps the old order.
             let bounded = !shape.keeps_a_start() && gap_m - d_lo > 0.0 && alpha >= 0.0;
             let holds = if bounded {
-                let start = start();
+                let start = self.last_d_m.clamp(bracket.0, bracket.1);
                 let first = g_and_slope(start);
                 at_start = Some((start, first));
                 let bound = first.0 + alpha * cf * k_si * (start - d_lo);

@@ -554,8 +554,8 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
 /// terms — power over the floor, a correlation, or Ljung–Box's Q per lag.
 fn location_line(l: &viscoprobe_core::diagnose::locate::Location) -> String {
     use viscoprobe_core::diagnose::locate::Level;
-    let unit = l.span_unit();
-    let level = match l.level {
+    let unit = l.domain.span_unit();
+    let level = match l.domain.level() {
         Level::PowerOverFloor => format!("power ×{:.2}", l.power_ratio),
         Level::Correlation => format!("r {:+.3}", l.power_ratio),
         Level::LjungBoxPerLag => format!("Q/lag {:.2}", l.power_ratio),
@@ -1084,49 +1084,54 @@ mod tests {
     /// as its power over the floor; a band's span in Hz, every other span in s.
     #[test]
     fn a_location_prints_its_level_in_its_own_terms() {
-        use viscoprobe_core::diagnose::locate::{Level, Location};
-        let at = |domain: &'static str, name: &str, power_ratio: f64, level: Level| Location {
+        use viscoprobe_core::diagnose::locate::{Domain, Location};
+        let at = |domain: Domain, name: &str, power_ratio: f64| Location {
             domain,
             name: name.into(),
             from: 0.5,
             to: 1.25,
             power_ratio,
-            level,
             z: 12.34,
             significant: true,
         };
-        let phase = at("time", "hold", 2.5, Level::PowerOverFloor);
+        let phase = at(Domain::Time, "hold", 2.5);
         assert_eq!(
             location_line(&phase),
             "time                  hold                                               0.500–1.250     s  power ×2.50, z 12.3"
         );
-        let band = at("frequency", "band 35–69 Hz", 2.61, Level::PowerOverFloor);
+        let band = at(Domain::Frequency, "band 35–69 Hz", 2.61);
         assert!(
             location_line(&band).ends_with("Hz  power ×2.61, z 12.3"),
             "{}",
             location_line(&band)
         );
         let nonlinear = at(
-            "nonlinear_correlation",
+            Domain::NonlinearCorrelation,
             "drive increments², lag -3 samples",
             -0.18,
-            Level::Correlation,
+        );
+        assert!(
+            location_line(&nonlinear).starts_with("nonlinear_correlation drive increments²"),
+            "{}",
+            location_line(&nonlinear)
         );
         assert!(
             location_line(&nonlinear).ends_with("s  r -0.180, z 12.3"),
             "{}",
             location_line(&nonlinear)
         );
-        let white = at(
-            "whiteness",
-            "ljung_box_20_lags",
-            7347.84,
-            Level::LjungBoxPerLag,
-        );
+        let white = at(Domain::Whiteness, "ljung_box_20_lags", 7347.84);
         assert!(
             location_line(&white).ends_with("s  Q/lag 7347.84, z 12.3"),
             "{}",
             location_line(&white)
+        );
+        // The JSON names the domain as it did when it was a string.
+        let json = serde_json::to_value(&white).unwrap();
+        assert_eq!(json["domain"], "whiteness");
+        assert_eq!(
+            serde_json::to_value(&nonlinear).unwrap()["domain"],
+            "nonlinear_correlation"
         );
     }
 
