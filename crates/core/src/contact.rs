@@ -324,6 +324,45 @@ impl Contact {
         }
     }
 
+    /// [`Contact::contact_radius`] and its derivative `da/dh` at `h_m` (both 0 for h ≤ 0):
+    /// `a/(2h)` for a sphere, `a/h` for a cone, `a/(n·h)` for a power-law profile, and from
+    /// `h(a)` for the flat-worn sphere and the blunted cone. A film's factor follows the
+    /// contact radius, and the twin's contact solve needs its slope: without it the solve's
+    /// Newton steps converge only linearly (see `twin`).
+    pub fn contact_radius_and_slope(&self, h_m: f64) -> (f64, f64) {
+        if h_m <= 0.0 {
+            return (0.0, 0.0);
+        }
+        // Above its cap, a blunted cone's radius and slope come from one solve.
+        if let TipGeometry::BluntedCone {
+            radius_m,
+            half_angle_rad,
+        } = self.tip
+        {
+            let bc = BluntedCone::new(radius_m, half_angle_rad);
+            if h_m > bc.h_t {
+                let p = bc.at(bc.s_from_h(h_m).0);
+                return (p.a, bc.radius_slope(&p));
+            }
+        }
+        let a = self.contact_radius(h_m);
+        let slope = match self.tip {
+            // A blunted cone here is on its spherical cap.
+            TipGeometry::Sphere { .. } | TipGeometry::BluntedCone { .. } => 0.5 * a / h_m,
+            TipGeometry::Cone { .. } => a / h_m,
+            TipGeometry::PowerLaw { exponent, .. } => a / (exponent * h_m),
+            TipGeometry::FlatSphere {
+                radius_m,
+                flat_radius_m,
+            } => {
+                // h(a) = a·q/R with q = √(a² − b²): dh/da = (2a² − b²)/(q·R).
+                let q = flat_sphere_radii(radius_m, flat_radius_m, h_m).1;
+                q * radius_m / (2.0 * a * a - flat_radius_m * flat_radius_m)
+            }
+        };
+        (a, slope)
+    }
+
     /// Static (elastic) indentation under force `force_n` on a material of compliance
     /// `compliance_per_pa`: the classic Hertz / Sneddon result.
     pub fn elastic_indentation(&self, force_n: f64, compliance_per_pa: f64) -> f64 {
@@ -455,6 +494,12 @@ impl BluntedCone {
             dh_ds: (s * theta * self.cot_a + self.h_t * (self.k0 + 2.0 * s * inv_sum)) / a,
             g: a * a_theta + s * b * self.cot_a + 2.0 / 3.0 * q * q * (2.0 * a + s) * self.inv_r,
         }
+    }
+
+    /// `da/dh` at a point above the transition: `(da/ds)/(dh/ds)`, with `da/ds = s/a`.
+    fn radius_slope(&self, p: &BluntedPoint) -> f64 {
+        let s = ((p.a - self.b) * (p.a + self.b)).max(0.0).sqrt();
+        s / (p.a * p.dh_ds)
     }
 
     /// `s` with `h(s) = h_m`, for `h_m > h_t`; also returns the number of evaluations.
@@ -704,6 +749,17 @@ impl ShapeFunction {
         match &self.blunted {
             Some(bc) if h_m > bc.h_t => self.blunted_point(bc, h_m).a,
             _ => self.contact.contact_radius(h_m),
+        }
+    }
+
+    /// [`Contact::contact_radius_and_slope`].
+    pub fn contact_radius_and_slope(&self, h_m: f64) -> (f64, f64) {
+        match &self.blunted {
+            Some(bc) if h_m > bc.h_t => {
+                let p = self.blunted_point(bc, h_m);
+                (p.a, bc.radius_slope(&p))
+            }
+            _ => self.contact.contact_radius_and_slope(h_m),
         }
     }
 
@@ -1339,5 +1395,62 @@ mod tests {
         );
         assert!(rel(above, below) < 1e-4, "{below} {above}");
         assert_eq!(Contact::sphere(r).contact_radius(0.0), 0.0);
+    }
+
+    /// `da/dh` is the contact radius's derivative, by central differences, for every shape:
+    /// the blunted cone on its cap and above it (cold and through a warm shape function), the
+    /// flat-worn sphere on its flat's depth and far below it, a worn and a sharpened power
+    /// law. A film's factor follows a(h), and the twin's contact solve steps with its slope.
+    #[test]
+    fn the_contact_radius_slope_is_its_derivative() {
+        let (r, alpha) = (1e-6f64, 0.5f64);
+        let h_t = r * alpha.cos().powi(2);
+        let law = |n: f64| Contact {
+            tip: TipGeometry::PowerLaw {
+                exponent: n,
+                coefficient_si: 0.5 / r,
+            },
+            poisson_ratio: 0.5,
+        };
+        let flat = Contact {
+            tip: TipGeometry::FlatSphere {
+                radius_m: r,
+                flat_radius_m: 100e-9,
+            },
+            poisson_ratio: 0.5,
+        };
+        let blunted = Contact::blunted_cone(r, alpha);
+        let cases = [
+            (Contact::sphere(r), 4e-8),
+            (Contact::cone(alpha), 4e-8),
+            (law(1.5), 4e-8),
+            (law(3.0), 4e-8),
+            (flat, 2e-9),
+            (flat, 2e-7),
+            (blunted, 0.5 * h_t),
+            (blunted, 1.5 * h_t),
+            (blunted, 30.0 * h_t),
+        ];
+        for (c, h) in cases {
+            let dh = 1e-6 * h;
+            let fd = (c.contact_radius(h + dh) - c.contact_radius(h - dh)) / (2.0 * dh);
+            let (a, slope) = c.contact_radius_and_slope(h);
+            assert_eq!(a, c.contact_radius(h), "{:?}", c.tip);
+            assert!(
+                slope > 0.0 && rel(slope, fd) < 1e-6,
+                "{:?} at {h}: {slope} vs {fd}",
+                c.tip
+            );
+            let warm = ShapeFunction::new(c);
+            warm.contact_radius_and_slope(0.99 * h);
+            let (a, slope) = warm.contact_radius_and_slope(h);
+            assert!(rel(a, c.contact_radius(h)) < 1e-12, "{:?}", c.tip);
+            assert!(
+                rel(slope, fd) < 1e-6,
+                "{:?} warm at {h}: {slope} vs {fd}",
+                c.tip
+            );
+        }
+        assert_eq!(Contact::sphere(r).contact_radius_and_slope(0.0), (0.0, 0.0));
     }
 }
