@@ -1399,8 +1399,9 @@ mod tests {
 
     /// `da/dh` is the contact radius's derivative, by central differences, for every shape:
     /// the blunted cone on its cap and above it (cold and through a warm shape function), the
-    /// flat-worn sphere on its flat's depth and far below it, a worn and a sharpened power
-    /// law. A film's factor follows a(h), and the twin's contact solve steps with its slope.
+    /// flat-worn sphere on its flat's depth and far below it, power laws between the cone and
+    /// the sphere (n = 1.5) and worn flat (n = 3). A film's factor follows a(h), and the
+    /// twin's contact solve steps with its slope.
     #[test]
     fn the_contact_radius_slope_is_its_derivative() {
         let (r, alpha) = (1e-6f64, 0.5f64);
