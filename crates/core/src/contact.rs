@@ -744,14 +744,6 @@ impl ShapeFunction {
         }
     }
 
-    /// [`Contact::contact_radius`].
-    pub fn contact_radius(&self, h_m: f64) -> f64 {
-        match &self.blunted {
-            Some(bc) if h_m > bc.h_t => self.blunted_point(bc, h_m).a,
-            _ => self.contact.contact_radius(h_m),
-        }
-    }
-
     /// [`Contact::contact_radius_and_slope`].
     pub fn contact_radius_and_slope(&self, h_m: f64) -> (f64, f64) {
         match &self.blunted {
@@ -1201,7 +1193,7 @@ mod tests {
                         let (y_c, d_c) = cold.y_and_slope(h);
                         assert!(rel(y, y_c) < 1e-13, "R {r}, α {deg}°, h {h}: y {y} {y_c}");
                         assert!(rel(d, d_c) < 1e-13, "R {r}, α {deg}°, h {h}: {d} {d_c}");
-                        let a = warm.contact_radius(h);
+                        let (a, _) = warm.contact_radius_and_slope(h);
                         assert!(rel(a, cold.contact_radius(h)) < 1e-13, "R {r}, α {deg}°");
                     }
                 }

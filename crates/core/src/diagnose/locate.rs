@@ -139,8 +139,7 @@ pub struct Location {
 
 /// Where, or by which statistic, a [`Location`] was found. It fixes what its level measures
 /// and the unit of its span, so that a report reads neither from a name.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "snake_case")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Domain {
     /// A phase of the record ([`in_time`]).
     Time,
@@ -197,6 +196,13 @@ impl Domain {
             Domain::Frequency => "Hz",
             _ => "s",
         }
+    }
+}
+
+/// The JSON names a domain as the report does ([`Domain::as_str`]): one list of names.
+impl Serialize for Domain {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        serializer.serialize_str(self.as_str())
     }
 }
 

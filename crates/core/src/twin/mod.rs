@@ -574,6 +574,10 @@ pub struct Twin {
     elapsed_samples: u64,
 }
 
+/// Dimitriadis et al. (2002)'s stiffening of a contact on a film bonded to a rigid substrate
+/// (ν ≈ 0.5): `1 + Σ cₖ·χᵏ`, k = 1…4, in the ratio χ of the contact radius to the thickness.
+const DIMITRIADIS_FILM: [f64; 4] = [1.133, 1.283, 0.769, 0.0975];
+
 impl Twin {
     /// Builds a twin; call [`TwinConfig::validate`] first — invalid values give nonsense here.
     pub fn new(cfg: &TwinConfig, fs_hz: f64) -> Self {
@@ -748,28 +752,27 @@ impl Twin {
         // every tip, as a bottom effect set by the contact radius a, rather than leave a film
         // under a cone with no effect at all. (Gavara & Chadwick 2012 derived a cone's own
         // coefficients; this twin does not carry them.)
-        let film_of = |chi: f64| -> f64 {
-            1.0 + 1.133 * chi + 1.283 * chi.powi(2) + 0.769 * chi.powi(3) + 0.0975 * chi.powi(4)
-        };
-        let film = |h_m: f64| -> Option<f64> {
-            match s.thickness_nm {
-                Some(th) if h_m > 0.0 => Some(film_of(shape.contact_radius(h_m) / (th * 1e-9))),
-                _ => None,
-            }
-        };
+        //
         // The factor and its derivative in h, through the contact radius's: the contact
-        // solve's Newton steps need the whole slope of `film(h)·h^k`.
+        // solve's Newton steps need the whole slope of `film(h)·h^k`. The derivative's
+        // coefficients are the factor's times their powers (exact in binary: the same bits
+        // as the literals they replaced).
+        let [c1, c2, c3, c4] = DIMITRIADIS_FILM;
         let film_and_slope = |h_m: f64| -> Option<(f64, f64)> {
             match s.thickness_nm {
                 Some(th) if h_m > 0.0 => {
                     let (a, da_dh) = shape.contact_radius_and_slope(h_m);
                     let chi = a / (th * 1e-9);
-                    let dfilm_dchi = 1.133 + 2.566 * chi + 2.307 * chi.powi(2) + 0.39 * chi.powi(3);
-                    Some((film_of(chi), dfilm_dchi * da_dh / (th * 1e-9)))
+                    let factor =
+                        1.0 + c1 * chi + c2 * chi.powi(2) + c3 * chi.powi(3) + c4 * chi.powi(4);
+                    let dfactor_dchi =
+                        c1 + (2.0 * c2) * chi + (3.0 * c3) * chi.powi(2) + (4.0 * c4) * chi.powi(3);
+                    Some((factor, dfactor_dchi * da_dh / (th * 1e-9)))
                 }
                 _ => None,
             }
         };
+        let film = |h_m: f64| film_and_slope(h_m).map(|(factor, _)| factor);
         // g(d) = film(h)·h^k − α·u(d) − β with h = gap − d, u = cf·(K·d + F_adh − F_ext),
         // decreasing in d, and its slope, from one evaluation of the shape function.
         //
