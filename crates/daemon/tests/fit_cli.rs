@@ -583,6 +583,7 @@ fn real_jpk_diagnose_json_keeps_the_documented_keys() {
             .get("refused")
             .expect("every effect says whether it was refused");
         assert!(refused.is_null() || refused.is_string(), "{e}");
+        assert!(e["at_nothing"].is_boolean(), "{e}");
         for (name, p) in e["params"].as_object().expect("params") {
             finite(p, "value");
             assert!(p["unit"].is_string(), "{name}: {p}");

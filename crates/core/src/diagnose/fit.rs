@@ -1011,4 +1011,82 @@ mod tests {
         let chi2 = projected_closed_form(unreachable.as_slice(), &columns[..1], &q);
         assert!((chi2 / other.norm_squared() - 1.0).abs() < 1e-6, "{chi2}");
     }
+
+    /// An effect switched off (`ModelSpec::at_nothing`) is the nominal twin: in every form
+    /// that has such a point, a model whose effect is clearly on (χ² far above the nominal
+    /// twin's) gives the nominal twin's χ² there to 10⁻⁶, or less where closed-form terms
+    /// come with it; a tip shape and a resonance have none.
+    #[test]
+    fn an_effect_at_nothing_is_the_nominal_twin() {
+        let twin = nominal_twin(3);
+        let (problem, _) = problem_of(&twin);
+        let nominal_spec = ModelSpec::nominal(MATERIAL_TERMS);
+        let nominal = problem.nominal_theta(
+            MATERIAL_TERMS,
+            twin.actuator.gain_nm_per_v,
+            twin.sample.contact_point_nm,
+            &twin.sample.material,
+        );
+        let chi2 = |spec: &ModelSpec, th: &[f64]| {
+            problem
+                .evaluate(spec, th)
+                .expect("a physical twin")
+                .chi2_train
+        };
+        let chi2_nominal = chi2(&nominal_spec, &nominal);
+        let max_h_nm = problem
+            .simulate(&nominal_spec, &nominal)
+            .expect("a physical twin")
+            .indentation_m
+            .iter()
+            .fold(0.0f64, |a, &h| a.max(h * 1e9));
+        // Each effect clearly on, its own parameters in θ order.
+        let on = |spec: &ModelSpec, e: Effect| -> Vec<f64> {
+            let ln = f64::ln;
+            match (e, spec.params_of(e).len()) {
+                (Effect::PiezoHysteresis, _) => vec![ln(0.1), ln(0.5), 0.3],
+                (Effect::PiezoCreep, _) => vec![ln(0.05), ln(0.2)],
+                (Effect::MissingRelaxation, _) => vec![nominal[2] + ln(0.3), ln(2e-3)],
+                (Effect::Adhesion, 1) => vec![ln(5.0)],
+                (Effect::Adhesion, 2) => vec![ln(5.0), ln(3.0)],
+                (Effect::Adhesion, _) => vec![ln(5.0), ln(100.0), ln(0.05)],
+                (Effect::ChannelDelay, _) => vec![ln(3.0 / FS_HZ)],
+                (Effect::SubstrateEffect, _) => vec![ln(1.5 * max_h_nm)],
+                (Effect::ThermalDrift, 2) => vec![20.0, 5.0],
+                (Effect::InstrumentResonance, 2) => vec![ln(500.0), ln(3.0)],
+                (Effect::InstrumentResonance, _) => vec![ln(500.0), ln(3.0), ln(2.0)],
+                (Effect::TipGeometry, 1) => vec![ln(0.3 * max_h_nm)],
+                _ => vec![],
+            }
+        };
+        let mut checked = 0;
+        for e in Effect::ALL {
+            for spec in nominal_spec.with(&[e]).variants() {
+                let mut th = nominal.clone();
+                th.extend(on(&spec, e));
+                assert_eq!(th.len(), spec.n_nonlinear(), "{}", spec.label());
+                let off = spec.at_nothing(&th, &nominal);
+                if matches!(e, Effect::TipGeometry | Effect::InstrumentResonance) {
+                    assert!(off.is_none(), "{spec:?}");
+                    continue;
+                }
+                let off = off.expect("a point at nothing");
+                let closed_form = spec.params_of(e).is_empty() && e != Effect::ThermalDrift
+                    || matches!(e, Effect::ThermalDrift) && problem.n_linear(&spec) > 1;
+                if !closed_form {
+                    let on_chi2 = chi2(&spec, &th);
+                    assert!(on_chi2 > chi2_nominal + 100.0, "{spec:?}: {on_chi2} on");
+                }
+                let at = chi2(&spec, &off);
+                if closed_form {
+                    assert!(at <= chi2_nominal * (1.0 + 1e-9), "{spec:?}: {at}");
+                } else {
+                    let rel = (at / chi2_nominal - 1.0).abs();
+                    assert!(rel < 1e-6, "{spec:?}: {at} against {chi2_nominal}");
+                }
+                checked += 1;
+            }
+        }
+        assert!(checked >= 15, "{checked} forms checked");
+    }
 }

@@ -162,6 +162,12 @@ pub struct EffectReport {
     /// Why a candidate that beat every margin is not named all the same (a mode fitted
     /// beyond what the record samples, a drag fitted negative).
     pub refused: Option<&'static str>,
+    /// Whether the candidate is reported at the nominal fit with its effect switched off
+    /// ([`model::ModelSpec::at_nothing`]): its model contains the nominal twin, its refit
+    /// ended above the nominal fit's train χ² (the channels beside the deflection counted),
+    /// and switched off it did better. `params` then hold the sizes that switch it off, and
+    /// `evidence` what that model gives.
+    pub at_nothing: bool,
     /// Why the candidate was not weighed at all (the piezo's own effects behind a height
     /// sensor, or a screening none of whose starts gave a physical twin): its `evidence` and
     /// `train_drop` are then 0 and say nothing. `None` for every candidate screened.
@@ -1686,8 +1692,22 @@ pub fn diagnose_observed(
     let limit_of = |e: Effect| limits.iter().find(|l| l.0 == e).and_then(|l| l.1.clone());
     let mut reports: Vec<EffectReport> = vec![];
     let mut sig_singles: Vec<(Effect, Fitted, f64)> = vec![];
-    for (e, f) in &singles {
-        let j = judge(&nom, f);
+    for (e, refit) in &singles {
+        // A refit that ends above the nominal fit over every channel's train samples is
+        // weighed, and reported, at its effect switched off where that is better
+        // (`at_nothing`). Over every channel: a delay's refit a little above the nominal on
+        // the deflection may hand a lag back to the stage that a height sensor reads.
+        let mut j = judge(&nom, refit);
+        let mut at_nothing = None;
+        if j.train_drop < 0.0 {
+            if let Some(off) = self::at_nothing(&problem, &nom, refit) {
+                let j_off = judge(&nom, &off);
+                if j_off.train_drop > j.train_drop {
+                    (j, at_nothing) = (j_off, Some(off));
+                }
+            }
+        }
+        let f = at_nothing.as_ref().unwrap_or(refit);
         if j.wins {
             // Ranked by the held-out drop less a BIC-like price per parameter: look-alikes
             // explain the same residual within a few χ² units, and then the simpler physics
@@ -1719,6 +1739,7 @@ pub fn diagnose_observed(
             sensor_evidence: j.sensor.map(|s| s.1),
             reference_evidence: j.reference.map(|s| s.1),
             refused: j.refused,
+            at_nothing: at_nothing.is_some(),
             not_evaluated: None,
             detection_limit: limit_of(*e),
             description: e.describe(),
@@ -1739,6 +1760,7 @@ pub fn diagnose_observed(
         sensor_evidence: None,
         reference_evidence: None,
         refused: None,
+        at_nothing: false,
         not_evaluated,
         detection_limit: limit_of(e),
         description: e.describe(),
@@ -1852,6 +1874,7 @@ pub fn diagnose_observed(
                     r.train_drop = j.train_drop;
                     r.bic_penalty = j.penalty;
                     r.given = Some(a.id());
+                    r.at_nothing = false;
                     r.held_out_nrmse = Some(held_nrmse(&problem, &fp));
                     r.sensor_evidence = j.sensor.map(|s| s.1);
                     r.reference_evidence = j.reference.map(|s| s.1);
@@ -2691,6 +2714,35 @@ fn summary(problem: &Problem, f: &Fitted) -> FitSummary {
         material: problem.material(&f.spec, &f.theta),
         actuator: problem.actuator_dynamics(&f.spec, &f.theta),
     }
+}
+
+/// The model of a candidate's refit `refit` at the nominal fit `nom` with its effect
+/// switched off ([`ModelSpec::at_nothing`]); `None` where its form has no such point.
+///
+/// The model contains the nominal twin, so its best fit can never end above the nominal
+/// one; a refit that did had stayed in a worse basin from its starts, or was refitted about
+/// a nominal fit that a later one bettered (`renominal`). Reported as it stood, it read as
+/// the effect making the fit worse: an independent simulator's hysteresis record (rec17)
+/// listed a film at −8970 held-out units, its refit from films 3 and 10 times the deepest
+/// indentation ending at 2.67 per train sample against the nominal's 1.18.
+///
+/// Only the judgement and the report take it: the pair stage starts a pair from the refit
+/// as it was, whose effect may still point somewhere, where at nothing its size's gradient
+/// vanishes (its logarithm is fitted) and the pair could never move it.
+fn at_nothing(problem: &Problem, nom: &Fitted, refit: &Fitted) -> Option<Fitted> {
+    let theta = refit.spec.at_nothing(&refit.theta, &nom.theta)?;
+    let eval = problem.evaluate(&refit.spec, &theta)?;
+    // The nominal parameters keep the nominal fit's intervals; the effect's are undetermined.
+    let mut sd = nom.sd.clone();
+    sd.resize(theta.len(), f64::NAN);
+    Some(Fitted {
+        spec: refit.spec.clone(),
+        theta,
+        eval,
+        sd,
+        jacobian: nom.jacobian.clone(),
+        free: nom.free.clone(),
+    })
 }
 
 fn params_of(problem: &Problem, f: &Fitted, e: Effect) -> Vec<Param> {

@@ -382,6 +382,11 @@ const SURFACE_DRIFT_NAMES: &[(&str, &str)] = &[
 /// logarithm, and 1 nm/s is the size of a warming instrument's drift.
 pub(crate) const SURFACE_DRIFT_SCALE_NM_PER_S: f64 = 1.0;
 
+/// The size of an effect switched off ([`ModelSpec::at_nothing`]), in its parameter's own
+/// unit: 10⁻¹² of a fraction, a nanonewton, a nanometre, a second. Not zero: the sizes are
+/// fitted as logarithms.
+pub const AT_NOTHING: f64 = 1e-12;
+
 /// Harmonics of the mains line that `mains_interference` in its harmonic form fits, the
 /// line itself counted as the first. The noise floor removes the same ones.
 pub(crate) const MAINS_HARMONICS: usize = 3;
@@ -883,6 +888,51 @@ impl ModelSpec {
 
     pub fn has(&self, e: Effect) -> bool {
         self.effects.contains(&e)
+    }
+
+    /// θ of this model at the nominal fit's parameters `nominal` with every effect switched
+    /// off: its size set to [`AT_NOTHING`] (a hysteresis's α, a creep's fraction, a
+    /// retardation term's compliance against the instantaneous one, an adhesion's force and
+    /// neck, a delay in seconds) or its film [`AT_NOTHING`]⁻¹ nm thick, a surface drift of
+    /// zero; the effects' other parameters as in `theta`, a fit of this model. The twin there
+    /// is the nominal one to within its tolerances, and the closed-form terms are solved as
+    /// ever. `None` where a form has no such point: a tip shape (no shape parameter turns a
+    /// sphere into the declared cone) or a resonance (a mode beyond every frequency is no
+    /// parameter value).
+    pub fn at_nothing(&self, theta: &[f64], nominal: &[f64]) -> Option<Vec<f64>> {
+        let n_nom = self.n_nominal();
+        if theta.len() != self.n_nonlinear() || nominal.len() != n_nom {
+            return None;
+        }
+        let mut t = theta.to_vec();
+        t[..n_nom].copy_from_slice(nominal);
+        let tiny = AT_NOTHING.ln();
+        for &e in &self.effects {
+            let o = self.offset_of(e)?;
+            match e {
+                Effect::PiezoHysteresis | Effect::PiezoCreep | Effect::ChannelDelay => t[o] = tiny,
+                Effect::MissingRelaxation => t[o] = nominal[2] + tiny,
+                Effect::Adhesion => {
+                    t[o] = tiny;
+                    if self.adhesion == AdhesionForm::Neck {
+                        t[o + 1] = tiny;
+                        t[o + 2] = tiny;
+                    }
+                }
+                Effect::SubstrateEffect => t[o] = -tiny,
+                Effect::ThermalDrift if self.drift.moves_surface() => {
+                    t[o] = 0.0;
+                    t[o + 1] = 0.0;
+                }
+                Effect::TipGeometry | Effect::InstrumentResonance => return None,
+                // Closed-form terms only.
+                Effect::ThermalDrift
+                | Effect::HydrodynamicDrag
+                | Effect::MainsInterference
+                | Effect::DetectorNonlinearity => {}
+            }
+        }
+        Some(t)
     }
 
     /// How many mains harmonics `mains_interference` has in this model, the line itself

@@ -99,6 +99,7 @@ pub fn diagnosis_json(file: &str, d: &Diagnosis, seconds: f64) -> Value {
             "sensor_evidence": e.sensor_evidence,
             "reference_evidence": e.reference_evidence,
             "refused": e.refused,
+            "at_nothing": e.at_nothing,
             "not_evaluated": e.not_evaluated,
             "detection_limit": e.detection_limit.as_ref().map(|l| json!({
                 "param": {"name": l.param, "unit": l.unit, "value": l.value},
@@ -540,10 +541,13 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
                 "  {:<22} evidence {:>10.1}{}",
                 e.id,
                 e.evidence,
-                match (e.refused, e.refitted) {
-                    (Some(why), _) => format!(" (not named: {why})"),
-                    (None, true) => String::new(),
-                    (None, false) => " (screened only)".into(),
+                match (e.refused, e.refitted, e.at_nothing) {
+                    (Some(why), _, _) => format!(" (not named: {why})"),
+                    (None, true, true) => {
+                        " (every refit ended above the nominal twin: weighed switched off)".into()
+                    }
+                    (None, true, false) => String::new(),
+                    (None, false, _) => " (screened only)".into(),
                 }
             );
         }
