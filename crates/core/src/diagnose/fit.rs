@@ -1021,12 +1021,7 @@ mod tests {
         let twin = nominal_twin(3);
         let (problem, _) = problem_of(&twin);
         let nominal_spec = ModelSpec::nominal(MATERIAL_TERMS);
-        let nominal = problem.nominal_theta(
-            MATERIAL_TERMS,
-            twin.actuator.gain_nm_per_v,
-            twin.sample.contact_point_nm,
-            &twin.sample.material,
-        );
+        let nominal = super::super::model::truth_theta(&problem, &twin, MATERIAL_TERMS);
         let chi2 = |spec: &ModelSpec, th: &[f64]| {
             problem
                 .evaluate(spec, th)

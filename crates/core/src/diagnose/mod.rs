@@ -1700,7 +1700,7 @@ pub fn diagnose_observed(
         let mut j = judge(&nom, refit);
         let mut at_nothing = None;
         if j.train_drop < 0.0 {
-            if let Some(off) = self::at_nothing(&problem, &nom, refit) {
+            for off in self::at_nothing(&problem, &nom, refit) {
                 let j_off = judge(&nom, &off);
                 if j_off.train_drop > j.train_drop {
                     (j, at_nothing) = (j_off, Some(off));
@@ -2717,7 +2717,10 @@ fn summary(problem: &Problem, f: &Fitted) -> FitSummary {
 }
 
 /// The model of a candidate's refit `refit` at the nominal fit `nom` with its effect
-/// switched off ([`ModelSpec::at_nothing`]); `None` where its form has no such point.
+/// switched off ([`ModelSpec::at_nothing`]); none where its form has no such point. An
+/// effect with closed-form terms is given twice: with them solved there, and at zero,
+/// which is the nominal fit itself (solved, a detector's curvature fitted on the sample's
+/// deflection can still read worse on a hard reference's wider range).
 ///
 /// The model contains the nominal twin, so its best fit can never end above the nominal
 /// one; a refit that did had stayed in a worse basin from its starts, or was refitted about
@@ -2729,20 +2732,34 @@ fn summary(problem: &Problem, f: &Fitted) -> FitSummary {
 /// Only the judgement and the report take it: the pair stage starts a pair from the refit
 /// as it was, whose effect may still point somewhere, where at nothing its size's gradient
 /// vanishes (its logarithm is fitted) and the pair could never move it.
-fn at_nothing(problem: &Problem, nom: &Fitted, refit: &Fitted) -> Option<Fitted> {
-    let theta = refit.spec.at_nothing(&refit.theta, &nom.theta)?;
-    let eval = problem.evaluate(&refit.spec, &theta)?;
+fn at_nothing(problem: &Problem, nom: &Fitted, refit: &Fitted) -> Vec<Fitted> {
+    let Some(theta) = refit.spec.at_nothing(&refit.theta, &nom.theta) else {
+        return vec![];
+    };
     // The nominal parameters keep the nominal fit's intervals; the effect's are undetermined.
     let mut sd = nom.sd.clone();
     sd.resize(theta.len(), f64::NAN);
-    Some(Fitted {
+    let fitted = |eval: model::Evaluation| Fitted {
         spec: refit.spec.clone(),
-        theta,
+        theta: theta.clone(),
         eval,
-        sd,
+        sd: sd.clone(),
         jacobian: nom.jacobian.clone(),
         free: nom.free.clone(),
-    })
+    };
+    let mut out: Vec<Fitted> = problem
+        .evaluate(&refit.spec, &theta)
+        .map(fitted)
+        .into_iter()
+        .collect();
+    let n_linear = problem.n_linear(&refit.spec);
+    if n_linear > nom.eval.linear.len() {
+        let mut eval = nom.eval.clone();
+        eval.linear.resize(n_linear, 0.0);
+        eval.linear_sd.resize(n_linear, f64::NAN);
+        out.push(fitted(eval));
+    }
+    out
 }
 
 fn params_of(problem: &Problem, f: &Fitted, e: Effect) -> Vec<Param> {
@@ -3997,12 +4014,7 @@ mod tests {
             vec![1.0],
         );
         let spec = ModelSpec::nominal(super::corpus::MATERIAL_TERMS);
-        let truth = problem.nominal_theta(
-            spec.terms,
-            twin.actuator.gain_nm_per_v,
-            twin.sample.contact_point_nm,
-            &twin.sample.material,
-        );
+        let truth = super::model::truth_theta(&problem, twin, spec.terms);
         (rec, problem, spec, truth)
     }
 
@@ -5033,6 +5045,78 @@ mod tests {
         };
         assert!(!outside_time(&white).is_empty());
         assert_eq!(outside_time(&rising), outside_time(&white));
+    }
+
+    /// A refit that ended above the nominal fit is weighed at its effect switched off: a
+    /// film far too thin comes back as the nominal fit (its χ² to 10⁻⁶); a detector's
+    /// curvature twice, with its terms solved there (no worse than the nominal) and at zero
+    /// (the nominal fit itself, to the bit); a tip swapped not at all.
+    #[test]
+    fn a_refit_above_the_nominal_is_weighed_at_nothing() {
+        use super::corpus::MATERIAL_TERMS;
+        use super::fit::Fitted;
+        use super::model::Effect::{DetectorNonlinearity, SubstrateEffect, TipGeometry};
+        let twin = nominal_twin(2);
+        let (drive, _) = protocol_drive(FS_HZ);
+        let drive = drive[..6000].to_vec();
+        let rec = simulate(&twin, &drive, FS_HZ, None);
+        let n = drive.len();
+        let problem = super::model::test_problem(
+            &twin,
+            FS_HZ,
+            drive,
+            rec.deflection_v,
+            (0..n).partition(|k| (k / 100) % 3 != 1),
+            vec![1.0],
+        );
+        let nominal = ModelSpec::nominal(MATERIAL_TERMS);
+        let truth = super::model::truth_theta(&problem, &twin, MATERIAL_TERMS);
+        let opts = FitOptions {
+            max_iterations: 4,
+            max_step: 1.0,
+            stall: None,
+        };
+        let nom = fit_model(&problem, &nominal, &[truth], opts, &Serial).expect("nominal fit");
+        // A refit as it ended: the model evaluated at `extra` beyond the nominal θ, with `bend`
+        // applied to it.
+        let ended = |e, extra: &[f64], bend: fn(&mut Vec<f64>)| -> Fitted {
+            let spec = nominal.with(&[e]);
+            let mut theta = nom.theta.clone();
+            theta.extend_from_slice(extra);
+            bend(&mut theta);
+            let eval = problem.evaluate(&spec, &theta).expect("a physical twin");
+            Fitted {
+                sd: vec![f64::NAN; theta.len()],
+                spec,
+                theta,
+                eval,
+                jacobian: nalgebra::DMatrix::zeros(0, 0),
+                free: vec![],
+            }
+        };
+        let chi2_nom = nom.eval.chi2_train;
+        let film = ended(SubstrateEffect, &[30f64.ln()], |_| {});
+        assert!(
+            film.eval.chi2_train > chi2_nom + 100.0,
+            "{}",
+            film.eval.chi2_train
+        );
+        let off = super::at_nothing(&problem, &nom, &film);
+        assert_eq!(off.len(), 1);
+        assert!((off[0].eval.chi2_train / chi2_nom - 1.0).abs() < 1e-6);
+        assert!(off[0].sd[nominal.n_nominal()].is_nan());
+        // A detector refitted with its gain 2 % off.
+        let detector = ended(DetectorNonlinearity, &[], |t| t[0] += 0.02);
+        assert!(detector.eval.chi2_train > chi2_nom + 100.0);
+        let off = super::at_nothing(&problem, &nom, &detector);
+        assert_eq!(off.len(), 2);
+        assert!(off[0].eval.chi2_train <= chi2_nom);
+        assert_eq!(off[1].eval.chi2_train, chi2_nom);
+        assert_eq!(off[1].eval.linear.len(), problem.n_linear(&off[1].spec));
+        assert_eq!(off[1].eval.linear[0], nom.eval.linear[0]);
+        assert!(off[1].eval.linear[1..].iter().all(|&c| c == 0.0));
+        let tip = ended(TipGeometry, &[], |_| {});
+        assert!(super::at_nothing(&problem, &nom, &tip).is_empty());
     }
 
     /// Every screened candidate is reported: those refitted by their refit, the others by

@@ -1951,6 +1951,22 @@ pub fn n_params(problem: &Problem, spec: &ModelSpec) -> usize {
     spec.n_nonlinear() + problem.n_linear(spec)
 }
 
+/// θ of the nominal model of `terms` Prony terms at `twin`'s own gain, contact point and
+/// material: the truth of a record that twin made, for tests.
+#[cfg(test)]
+pub(crate) fn truth_theta(
+    problem: &Problem,
+    twin: &crate::twin::TwinConfig,
+    terms: usize,
+) -> Vec<f64> {
+    problem.nominal_theta(
+        terms,
+        twin.actuator.gain_nm_per_v,
+        twin.sample.contact_point_nm,
+        &twin.sample.material,
+    )
+}
+
 /// A problem for tests: `twin`'s calibration, `deflection_v` (at `fs_hz`, `drive`'s length)
 /// white at the twin's noise, mains at 50 Hz, the train and held-out samples given.
 #[cfg(test)]
