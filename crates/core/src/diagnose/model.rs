@@ -383,8 +383,8 @@ const SURFACE_DRIFT_NAMES: &[(&str, &str)] = &[
 pub(crate) const SURFACE_DRIFT_SCALE_NM_PER_S: f64 = 1.0;
 
 /// The size of an effect switched off ([`ModelSpec::at_nothing`]), in its parameter's own
-/// unit: 10⁻¹² of a fraction, a nanonewton, a nanometre, a second. Not zero: the sizes are
-/// fitted as logarithms.
+/// unit: 10⁻¹² of a fraction, a nanonewton, a nanometre, a newton per metre, a second. Not
+/// zero: the sizes are fitted as logarithms.
 pub const AT_NOTHING: f64 = 1e-12;
 
 /// Harmonics of the mains line that `mains_interference` in its harmonic form fits, the
