@@ -677,7 +677,7 @@ pub fn orthonormal_basis(j: &DMatrix<f64>) -> DMatrix<f64> {
 #[cfg(test)]
 mod tests {
     use super::super::corpus::{nominal_twin, protocol_drive, simulate, FS_HZ, MATERIAL_TERMS};
-    use super::super::model::{Effect, ModelSpec, Problem};
+    use super::super::model::{Effect, ModelSpec, Problem, TipForm};
     use super::*;
     use crate::fan::{tests::Reversed, Serial};
 
@@ -1015,7 +1015,8 @@ mod tests {
     /// An effect switched off (`ModelSpec::at_nothing`) is the nominal twin: in every form
     /// that has such a point, a model whose effect is clearly on (χ² far above the nominal
     /// twin's) gives the nominal twin's χ² there to 10⁻⁶, or less where closed-form terms
-    /// come with it; a tip shape and a resonance have none.
+    /// come with it (a tip of the declared exponent, or a sphere worn over nothing,
+    /// included); a tip swapped or blunted and a resonance have none.
     #[test]
     fn an_effect_at_nothing_is_the_nominal_twin() {
         let twin = nominal_twin(3);
@@ -1050,6 +1051,7 @@ mod tests {
                 (Effect::ThermalDrift, 2) => vec![20.0, 5.0],
                 (Effect::InstrumentResonance, 2) => vec![ln(500.0), ln(3.0)],
                 (Effect::InstrumentResonance, _) => vec![ln(500.0), ln(3.0), ln(2.0)],
+                (Effect::TipGeometry, 1) if spec.tip == TipForm::PowerLaw => vec![ln(1.3)],
                 (Effect::TipGeometry, 1) => vec![ln(0.3 * max_h_nm)],
                 _ => vec![],
             }
@@ -1060,8 +1062,16 @@ mod tests {
                 let mut th = nominal.clone();
                 th.extend(on(&spec, e));
                 assert_eq!(th.len(), spec.n_nonlinear(), "{}", spec.label());
-                let off = spec.at_nothing(&th, &nominal);
-                if matches!(e, Effect::TipGeometry | Effect::InstrumentResonance) {
+                let off = spec.at_nothing(&th, &nominal, problem.declared_tip);
+                let worn_cone = spec.tip == TipForm::Flat
+                    && matches!(
+                        problem.declared_tip.declared_as(),
+                        crate::recording::Tip::Cone { .. }
+                    );
+                let none = e == Effect::InstrumentResonance
+                    || e == Effect::TipGeometry
+                        && (matches!(spec.tip, TipForm::Swap | TipForm::Blunted) || worn_cone);
+                if none {
                     assert!(off.is_none(), "{spec:?}");
                     continue;
                 }

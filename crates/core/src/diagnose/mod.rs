@@ -2744,7 +2744,10 @@ fn summary(problem: &Problem, f: &Fitted) -> FitSummary {
 /// On the concealed corpus's delay + missing term, seed 3, the term's refit from there ended
 /// 0.6 above the nominal: alone it explains nothing, beside the delay it was never paired.
 fn at_nothing(problem: &Problem, nom: &Fitted, refit: &Fitted) -> Vec<Fitted> {
-    let Some(theta) = refit.spec.at_nothing(&refit.theta, &nom.theta) else {
+    let Some(theta) = refit
+        .spec
+        .at_nothing(&refit.theta, &nom.theta, problem.declared_tip)
+    else {
         return vec![];
     };
     // The nominal parameters keep the nominal fit's intervals; the effect's are undetermined.

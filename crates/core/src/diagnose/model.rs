@@ -894,12 +894,19 @@ impl ModelSpec {
     /// off: its size set to [`AT_NOTHING`] (a hysteresis's α, a creep's fraction, a
     /// retardation term's compliance against the instantaneous one, an adhesion's force and
     /// neck, a delay in seconds) or its film [`AT_NOTHING`]⁻¹ nm thick, a surface drift of
-    /// zero; the effects' other parameters as in `theta`, a fit of this model. The twin there
-    /// is the nominal one to within its tolerances, and the closed-form terms are solved as
-    /// ever. `None` where a form has no such point: a tip shape (no shape parameter turns a
-    /// sphere into the declared cone) or a resonance (a mode beyond every frequency is no
-    /// parameter value).
-    pub fn at_nothing(&self, theta: &[f64], nominal: &[f64]) -> Option<Vec<f64>> {
+    /// zero, a tip of the `declared` one's profile exponent or, on a declared sphere, worn
+    /// over a flat [`AT_NOTHING`] nm wide; the effects' other parameters as in `theta`, a fit
+    /// of this model. The twin there is the nominal one to within its tolerances, and the
+    /// closed-form terms are solved as ever. `None` where a form has no such point: a tip
+    /// swapped for the other shape or blunted (no parameter value of the blunted cone is the
+    /// declared sphere: `blunted` keeps a sliver of cone), a cone worn flat (it is worn from
+    /// a sphere), or a resonance (a mode beyond every frequency is no parameter value).
+    pub fn at_nothing(
+        &self,
+        theta: &[f64],
+        nominal: &[f64],
+        declared: TipConfig,
+    ) -> Option<Vec<f64>> {
         let n_nom = self.n_nominal();
         if theta.len() != self.n_nonlinear() || nominal.len() != n_nom {
             return None;
@@ -924,7 +931,12 @@ impl ModelSpec {
                     t[o] = 0.0;
                     t[o + 1] = 0.0;
                 }
-                Effect::TipGeometry | Effect::InstrumentResonance => return None,
+                Effect::TipGeometry => match (self.tip, declared.declared_as()) {
+                    (TipForm::PowerLaw, _) => t[o] = TipForm::declared_exponent(declared).ln(),
+                    (TipForm::Flat, crate::recording::Tip::Sphere { .. }) => t[o] = tiny,
+                    _ => return None,
+                },
+                Effect::InstrumentResonance => return None,
                 // Closed-form terms only.
                 Effect::ThermalDrift
                 | Effect::HydrodynamicDrag
