@@ -5071,18 +5071,7 @@ mod tests {
         use super::fit::Fitted;
         use super::model::Effect::{DetectorNonlinearity, SubstrateEffect, TipGeometry};
         let twin = nominal_twin(2);
-        let (drive, _) = protocol_drive(FS_HZ);
-        let drive = drive[..6000].to_vec();
-        let rec = simulate(&twin, &drive, FS_HZ, None);
-        let n = drive.len();
-        let problem = super::model::test_problem(
-            &twin,
-            FS_HZ,
-            drive,
-            rec.deflection_v,
-            (0..n).partition(|k| (k / 100) % 3 != 1),
-            vec![1.0],
-        );
+        let (problem, _) = super::fit::tests::problem_of(&twin);
         let nominal = ModelSpec::nominal(MATERIAL_TERMS);
         let truth = super::model::truth_theta(&problem, &twin, MATERIAL_TERMS);
         let opts = FitOptions {
