@@ -1086,8 +1086,8 @@ pub fn diagnose_observed(
     // nominal fit is.
     //
     // Measured (2026-11-30) on the concealed corpus of seeds 1–3 written as files (the CSV's
-    // rounding lets 25 of their 59 nominal fits spend a term; the in-memory corpus's nominal
-    // fits spend none): on `substrate_effect/near_floor/seed2` the slowest term had gone to
+    // rounding lets 25 of their 59 nominal fits spend a term; the in-memory corpus's
+    // diagnoses came out the same in every field, with either rule): on `substrate_effect/near_floor/seed2` the slowest term had gone to
     // 3.7·10⁵ s, a flow, standing in for the film's stiffening; put back, the nominal fit went
     // from 4.47 to 3.03 χ² per train sample, its refits from 26 018 simulations to 13 275, and
     // the diagnosis from 33.5 s to 17.3 s, the film named alike. Over the 59 files: the same
