@@ -388,6 +388,21 @@ pub fn spent_term_starts(spec: &ModelSpec, th: &[f64], fs_hz: f64, record_s: f64
         .collect()
 }
 
+/// The fit of `f`'s model from the starts that put a Prony term `f` has spent back to use
+/// ([`spent_term_starts`], over a record `record_s` long); `None` where no term is spent.
+/// The diagnosis tries it on its nominal fit and on every candidate's refit, and keeps it
+/// by its own rule each time.
+pub fn fit_spent_terms_used(
+    problem: &Problem,
+    f: &Fitted,
+    record_s: f64,
+    opts: FitOptions,
+    fan: &dyn Fan,
+) -> Option<Fitted> {
+    let starts = spent_term_starts(&f.spec, &f.theta, problem.fs_hz, record_s);
+    fit_model(problem, &f.spec, &starts, opts, fan)
+}
+
 /// Fits the nonlinear parameters of `spec` from each start — every one, but for the nominal
 /// actuator's dynamics where `spec` holds them ([`ModelSpec::frees_actuator_dynamics`]) —
 /// and keeps the lowest χ²_train. The actuator's damping is held too where the start's lag is

@@ -851,6 +851,7 @@ pub fn diagnose_observed(
     }
     let nominal = ModelSpec::nominal(terms);
     let fs = rec.sample_rate_hz;
+    let record_s = n as f64 / fs;
     // Where the model's base position comes from, in one place. Behind a commanded
     // displacement, the actuator's own position sensor, when the recording has one and it
     // parts from the command (`sensor_parts_from_command`), is where the base really was: a
@@ -1089,10 +1090,11 @@ pub fn diagnose_observed(
     //
     // Measured (2026-11-30) on the concealed corpus of seeds 1–3 written as files (the CSV's
     // rounding lets 25 of their 59 nominal fits spend a term; the in-memory corpus's
-    // diagnoses came out the same in every field, with either rule): on `substrate_effect/near_floor/seed2` the slowest term had gone to
-    // 3.7·10⁵ s, a flow, standing in for the film's stiffening; put back, the nominal fit went
-    // from 4.47 to 3.03 χ² per train sample, its refits from 26 018 simulations to 13 275, and
-    // the diagnosis from 33.5 s to 17.3 s, the film named alike. Over the 59 files: the same
+    // diagnoses came out the same in every field, with either rule): on
+    // `substrate_effect/near_floor/seed2` the nominal fit had spent a term where the film is
+    // missing (its reported material's slowest term stood at 3.7·10⁵ s, a flow); put back,
+    // the nominal fit went from 4.47 to 3.03 χ² per train sample, its refits from 26 018
+    // simulations to 13 275, and the diagnosis from 33.5 s to 17.3 s, the film named alike. Over the 59 files: the same
     // top effect on every file, the masked hysteresis of seed 1 no longer with a resonance
     // named beside it, 677 484 simulations against 703 605; but `tip_geometry/near_floor/seed3`
     // lost its tip as the second effect (its nominal fit 3.93 → 3.39, the tip's refit about it
@@ -1104,9 +1106,8 @@ pub fn diagnose_observed(
         if train_at_floor(&f) {
             return f;
         }
-        let spent = fit::spent_term_starts(&nominal, &f.theta, fs, n as f64 / fs);
         let excess = f.eval.chi2_train - n_tr;
-        match fit_model(problem, &nominal, &spent, nominal_opts, fan) {
+        match fit::fit_spent_terms_used(problem, &f, record_s, nominal_opts, fan) {
             Some(e) if f.eval.chi2_train - e.eval.chi2_train >= SPENT_SHARE * excess => {
                 polished(problem, e)
             }
@@ -1477,8 +1478,7 @@ pub fn diagnose_observed(
             // time at 1.07 ms (727 units) beside it, and is now named alone at 16 941 units,
             // its material within 2 % of the truth but for the small middle term (4.0·10⁻⁸
             // Pa⁻¹ at 7.9 ms against 3.8·10⁻⁸ at 11.6 ms).
-            let spent = fit::spent_term_starts(&best.spec, &best.theta, fs, n as f64 / fs);
-            if let Some(f) = fit_model(&problem, &best.spec, &spent, refit_opts, fan) {
+            if let Some(f) = fit::fit_spent_terms_used(&problem, &best, record_s, refit_opts, fan) {
                 if f.eval.chi2_train < best.eval.chi2_train {
                     best = f;
                 }
