@@ -62,6 +62,12 @@ pub enum FitError {
     NoIndentation,
     #[error("the in-contact window has only {0} samples")]
     TooShort(usize),
+    #[error("the deflection sits pinned at {level_v:.4} V from t = {at_s:.4} s, {after} samples after the contact: the detector or its converter saturated, and a fit needs the force it hid; record within the detector's range (viscoprobe diagnose leaves such samples out)")]
+    PinnedAtContact {
+        level_v: f64,
+        at_s: f64,
+        after: usize,
+    },
     #[error("estimation: {0}")]
     Estimate(#[from] EstimateError),
 }
@@ -114,6 +120,9 @@ pub struct Prepared {
     pub baseline_tilt_v_per_nm: f64,
     /// Where the indentation came from: `reference`, `measured_height` or `drive`.
     pub indentation_source: &'static str,
+    /// Where the window was ended early at a deflection pinned at its limit: that clip
+    /// ([`crate::recording::clip::Clip::describe`]).
+    pub pinned: Option<String>,
     /// Over the window: recorded time, s; force, N; indentation, m; drive (its own units).
     pub time_s: Vec<f64>,
     pub force_n: Vec<f64>,
@@ -261,7 +270,30 @@ pub fn prepare_with(rec: &Recording, fan: &dyn Fan) -> Result<Prepared, FitError
         .find(|&i| force[i] > threshold)
         .unwrap_or(walkback);
     let end = window_end(drive, &force, walkback, imax, threshold);
-    let build = |contact: usize| build_window(rec, &bl, &force, contact, end, contact != walkback);
+    // A deflection pinned at its limit (`recording::clip`) says only that the force was
+    // beyond it, and no force is known from there on: the window ends at the first pinned
+    // sample after the contact.
+    let clips = crate::recording::clip::find_clipped(defl, bl.noise);
+    let pinned = (clips.iter())
+        .filter_map(|c| Some((c.samples.iter().copied().find(|&k| k > walkback)?, c)))
+        .min_by_key(|(k, _)| *k)
+        .filter(|(k, _)| *k < end);
+    if let Some((k, c)) = pinned.filter(|(k, _)| *k <= walkback + MIN_WINDOW) {
+        return Err(FitError::PinnedAtContact {
+            level_v: c.level_v,
+            at_s: k as f64 / rec.sample_rate_hz,
+            after: k - walkback,
+        });
+    }
+    let end = pinned.map_or(end, |(k, _)| k);
+    let pinned = pinned.map(|(_, c)| c.describe(n, rec.sample_rate_hz));
+    let build = |contact: usize| {
+        let p = build_window(rec, &bl, &force, contact, end, contact != walkback);
+        p.map(|p| Prepared {
+            pinned: pinned.clone(),
+            ..p
+        })
+    };
     // Where the force rises slowly out of the noise (soft gels, long-range forces), the last
     // sample within the noise band is not the contact of a Hertz contact: the contact point
     // is then chosen, between that sample and the threshold crossing, as the one whose (u, y)
@@ -296,6 +328,9 @@ pub fn prepare_with(rec: &Recording, fan: &dyn Fan) -> Result<Prepared, FitError
 /// point is searched for by fit.
 const CONTACT_SEARCH_MIN: usize = 20;
 
+/// The fewest samples past the contact an in-contact window may hold.
+const MIN_WINDOW: usize = 50;
+
 fn build_window(
     rec: &Recording,
     bl: &Baseline,
@@ -307,7 +342,7 @@ fn build_window(
     let c_m = rec.meta.cantilever.deflection_sensitivity_nm_per_v * 1e-9;
     let drive = rec.drive.values();
     let defl = &rec.deflection_v;
-    if end <= contact + 50 {
+    if end <= contact + MIN_WINDOW {
         return Err(FitError::TooShort(end.saturating_sub(contact)));
     }
     let (h, source): (Vec<f64>, &'static str) = if let Some(r) = &rec.reference_deflection_v {
@@ -364,6 +399,7 @@ fn build_window(
                 .map_or(0.0, |p| bl.b / p.gain_nm_per_v.max(f64::MIN_POSITIVE)),
         },
         indentation_source: source,
+        pinned: None,
         time_s: rec.time_s[contact..end].to_vec(),
         force_n,
         indentation_m: h,
@@ -724,6 +760,12 @@ pub(crate) fn fit_prepared(
     };
     let sampling = Sampling::FirstOrderHold { fs_hz: fs };
     let mut notes: Vec<String> = Vec::new();
+    if let Some(pinned) = &prepared.pinned {
+        let end_s = prepared.end_index as f64 / fs;
+        notes.push(format!(
+            "{pinned}; the in-contact window ends at its first pinned sample ({end_s:.4} s), and the contact after it is not fitted"
+        ));
+    }
     let periodic = detect_periodic(&prepared.drive);
 
     // One pass of order selection over `range` with `fit_order`.
@@ -1109,6 +1151,47 @@ mod tests {
         let bits = |x: &[f64]| x.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
         assert_eq!(bits(&a.u), bits(&b.u));
         assert_eq!(bits(&a.y), bits(&b.y));
+    }
+
+    /// A detector that saturates (the twin's `range_v`, at 85 % of the clean record's peak)
+    /// pins the deflection while the force goes on rising. The window ends at the first
+    /// pinned sample, the notes say so, and J0's interval holds the truth. Fitted through
+    /// the flat top, the same record gave J0's interval as [6.55, 6.60] µPa⁻¹ against a
+    /// truth of 6.13.
+    #[test]
+    fn a_window_ends_where_the_deflection_sits_pinned() {
+        let fs = 4000.0;
+        let mut twin = nominal_twin(1);
+        let drive = protocol_drive(fs).0;
+        let clean = simulate(&twin, &drive, fs, None);
+        let peak = clean.deflection_v.iter().copied().fold(0.0, f64::max);
+        twin.detector.range_v = 0.85 * peak;
+        let rec = simulate(&twin, &drive, fs, None);
+        let first_pinned = rec
+            .deflection_v
+            .iter()
+            .position(|&v| v == 0.85 * peak)
+            .unwrap();
+
+        let fit = fit_recording(&rec, Terms::Fixed(2)).unwrap();
+        assert_eq!(fit.prepared.end_index, first_pinned);
+        assert!(
+            fit.notes[0].contains("pinned at its largest value"),
+            "{:?}",
+            fit.notes
+        );
+        let truth = twin.sample.material.j0_per_pa;
+        let [lo, hi] = fit.estimate.ci95[0];
+        assert!(
+            lo < truth && truth < hi,
+            "J0 [{lo:e}, {hi:e}] against {truth:e} 1/Pa"
+        );
+
+        // Pinned almost at once, nothing is left to fit: the error says why.
+        twin.detector.range_v = 0.02 * peak;
+        let rec = simulate(&twin, &drive, fs, None);
+        let e = fit_recording(&rec, Terms::Fixed(2)).unwrap_err();
+        assert!(matches!(e, FitError::PinnedAtContact { .. }), "{e}");
     }
 
     /// A fit of a recording whose optional channel dropped a sample says so first in its

@@ -261,7 +261,13 @@ fn signature_limit(
         train: needed.train * inflation,
         held: needed.held * inflation,
     };
-    let (scale, limit) = limit_of(&d_raw, &d_w, held_energy, tangent, needed, noise.sigma_v)?;
+    // Its size is read where the recording shows it: not where the deflection sat pinned.
+    let every: Vec<usize> = (0..d_raw.len()).collect();
+    let seen_raw: Vec<f64> = crate::recording::clip::leave_out(&every, &problem.left_out)
+        .into_iter()
+        .map(|k| d_raw[k])
+        .collect();
+    let (scale, limit) = limit_of(&seen_raw, &d_w, held_energy, tangent, needed, noise.sigma_v)?;
     Some((
         scale,
         DetectionLimit {
@@ -271,7 +277,7 @@ fn signature_limit(
     ))
 }
 
-/// [`detection_limit`] from the signature itself: raw (V, every sample), whitened on the
+/// [`detection_limit`] from the signature itself: raw (V, every sample the recording shows), whitened on the
 /// train samples (χ² units), and its whitened energy on the held-out ones. The held-out part
 /// is taken to stay visible in the train part's share: the nominal refit's take, fitted on
 /// the train samples, carries over to the held-out ones as a whole. Its own energy is

@@ -45,7 +45,7 @@ use crate::analysis;
 use crate::estimate::lm::Stall;
 use crate::fan::{self, Fan};
 use crate::prony::PronySeries;
-use crate::recording::{gaps, Drive, Recording};
+use crate::recording::{clip, gaps, Drive, Recording};
 use crate::twin::actuator::Actuator;
 use crate::twin::TipConfig;
 use fit::{
@@ -317,9 +317,10 @@ pub struct Diagnosis {
     /// diagnosis read it (`witness::ReferenceWitness::contact_offset_nm`): 0 where the
     /// reference reads the alignment the format promises; `None` without a reference.
     pub reference_contact_offset_nm: Option<f64>,
-    /// What became of the optional channels (`reference_deflection_v`, `measured_height_nm`)
-    /// where the diagnosis did not use them as recorded: missing samples filled or left out
-    /// ([`gaps`]), or a channel not used at all, and why. One plain sentence each.
+    /// What became of the channels the diagnosis did not use as recorded: a deflection
+    /// pinned at its limit, those samples left out ([`clip`]); missing samples of the optional
+    /// channels (`reference_deflection_v`, `measured_height_nm`) filled or left out
+    /// ([`gaps`]), or such a channel not used at all, and why. One plain sentence each.
     pub channel_notes: Vec<String>,
     /// Catalog effects that can hide in the nominal model on this recording's channels, up to
     /// a bound the fit gives ([`BlindSpot`]): a verdict of none cannot speak for them.
@@ -922,6 +923,19 @@ pub fn diagnose_observed(
     events.extend(snap);
     events.extend(drive_steps(&drive, block));
     let (train, held) = split_train_held(n, block, anchor, &events);
+    // Samples pinned at the channel's limit say only that the force was beyond it: they are
+    // left out of every χ² (`clip`), with the whitening's reach after each.
+    let clips = clip::find_clipped(&y, sigma_head);
+    let mut pinned: Vec<usize> = clips
+        .iter()
+        .flat_map(|c| c.samples.iter().copied())
+        .collect();
+    pinned.sort_unstable();
+    let left_out = clip::reach(&pinned, noise.ar.len().saturating_sub(1), n);
+    let (train, held) = (
+        clip::leave_out(&train, &left_out),
+        clip::leave_out(&held, &left_out),
+    );
     let t_s: Vec<f64> = rec.time_s.iter().map(|t| t - rec.time_s[0]).collect();
     let mut problem = Problem {
         fs_hz: fs,
@@ -936,6 +950,7 @@ pub fn diagnose_observed(
         sigma_w_v: noise.sigma_w_v,
         train,
         held,
+        left_out,
         mains_hz: pick_mains(&y[..free_end.max(2)], fs),
         floor_from_hz: 3.0 * fs / noise.samples.max(1) as f64,
         floor_rises_at_bottom: noise.rises_at_low_frequency(fs),
@@ -2001,16 +2016,18 @@ pub fn diagnose_observed(
             .find(|l| l.0 == Effect::ChannelDelay)
             .and_then(|l| l.1.as_ref()),
     );
-    let mut channel_notes: Vec<String> = gaps
-        .channels
-        .iter()
-        .map(|g| match g.removed {
-            true => g.to_string(),
-            false => format!(
-                "{g} where it is an input, and left out of its χ² where it witnesses the models"
-            ),
+    let mut channel_notes: Vec<String> = (clips.iter())
+        .map(|c| {
+            let d = c.describe(n, fs);
+            format!("{d}, and those samples are left out of every fit and χ²")
         })
         .collect();
+    channel_notes.extend(gaps.channels.iter().map(|g| match g.removed {
+        true => g.to_string(),
+        false => format!(
+            "{g} where it is an input, and left out of its χ² where it witnesses the models"
+        ),
+    }));
     if rec.reference_deflection_v.is_some() && reference.is_none() {
         channel_notes.push(
             "reference_deflection_v: not used: the nominal twin's reading of the reference never touches it, or the column reads nothing against that reading (a constant column, or a path without noise)"
@@ -2107,12 +2124,17 @@ fn model_of(y: &[f64], f: &Fitted) -> Vec<f64> {
         .collect()
 }
 
+/// The whitened residual of `f` in units of the floor, zero where the samples are left out.
 fn whitened(problem: &Problem, f: &Fitted) -> Vec<f64> {
-    problem
+    let mut e: Vec<f64> = problem
         .whiten(&f.eval.residual_v)
         .into_iter()
         .map(|v| v / problem.sigma_w_v)
-        .collect()
+        .collect();
+    for &k in &problem.left_out {
+        e[k] = 0.0;
+    }
+    e
 }
 
 fn locations(problem: &Problem, e: &[f64], phases: &[Phase]) -> Vec<Location> {
@@ -4226,6 +4248,47 @@ mod tests {
         let d = diagnose(&with_reference(&twin), &corpus_options()).unwrap();
         assert_eq!(d.reference_contact_offset_nm, Some(0.0));
         assert_eq!(d.verdict, Verdict::None, "{:?}", d.effects[0]);
+    }
+
+    /// A detector that saturates (the twin's `range_v`, at 85 % of the clean record's peak)
+    /// pins the deflection while the force goes on rising. The pinned samples are left out
+    /// of every χ² and the report says so; the clean record then names nothing, and the
+    /// material comes out as without the limit (J0 0.7 % from it). Fitted on the flat top as
+    /// it stood, the same record was named `detector_nonlinearity` (the nominal fit at 12.0
+    /// χ² per train sample, that refit at 6.2) and J0 came out 18 times the unclipped one.
+    #[test]
+    fn a_saturated_detector_is_left_out_and_said_so() {
+        let mut twin = nominal_twin(41);
+        let (drive_v, _) = protocol_drive(FS_HZ);
+        let clean = simulate(&twin, &drive_v, FS_HZ, None);
+        let peak = clean.deflection_v.iter().copied().fold(0.0, f64::max);
+        twin.detector.range_v = 0.85 * peak;
+        let rec = simulate(&twin, &drive_v, FS_HZ, None);
+        let pinned = rec
+            .deflection_v
+            .iter()
+            .filter(|&&v| v == 0.85 * peak)
+            .count();
+        assert!(pinned > 500, "{pinned} samples pinned");
+
+        let whole = diagnose(&clean, &corpus_options()).unwrap();
+        let d = diagnose(&rec, &corpus_options()).unwrap();
+        assert_eq!(d.verdict, Verdict::None, "{:?}", d.effects[0]);
+        assert!(
+            d.against_floor.after_at_floor,
+            "{}",
+            d.after.train_chi2_per_sample
+        );
+        assert_eq!(d.channel_notes.len(), 1, "{:?}", d.channel_notes);
+        let note = &d.channel_notes[0];
+        assert!(note.contains("pinned at its largest value"), "{note}");
+        assert!(note.contains(&format!("on {pinned} of")), "{note}");
+        let (j, j_whole) = (d.after.material.j0_per_pa, whole.after.material.j0_per_pa);
+        assert!(
+            (j / j_whole - 1.0).abs() < 0.05,
+            "J0 {j:e} against {j_whole:e} 1/Pa"
+        );
+        assert!(whole.channel_notes.is_empty(), "{:?}", whole.channel_notes);
     }
 
     /// One missing sample in the reference column (an empty cell, which the format allows in

@@ -1063,6 +1063,9 @@ pub struct Problem {
     /// Fitting (train) and held-out sample indices.
     pub train: Vec<usize>,
     pub held: Vec<usize>,
+    /// Samples in neither: a deflection pinned at its limit and the whitening's reach after
+    /// each ([`crate::recording::clip`]). The residual the locations read is zero there.
+    pub left_out: Vec<usize>,
     /// Mains frequency the `mains_interference` module uses, Hz (50 or 60).
     pub mains_hz: f64,
     /// Lowest frequency at which the noise floor was measured, Hz.
@@ -2003,6 +2006,7 @@ pub(crate) fn test_problem(
         sigma_w_v: twin.detector.white_noise_v,
         train,
         held,
+        left_out: vec![],
         mains_hz: 50.0,
         floor_from_hz: 1.0,
         floor_rises_at_bottom: false,

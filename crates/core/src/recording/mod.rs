@@ -26,8 +26,10 @@
 //! as `NaN`), only the required columns must be finite; a wrong sample rate is reported once
 //! against the median time step before single uneven steps are looked for. The users of a
 //! recording fill such gaps in the optional channels with [`gaps::with_gaps_filled`], which
-//! says where it did.
+//! says where it did, and find a deflection pinned at a saturated detector's limit with
+//! [`clip::find_clipped`].
 
+pub mod clip;
 mod csv;
 mod error;
 pub mod gaps;
