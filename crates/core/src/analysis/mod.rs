@@ -1131,7 +1131,7 @@ impl RecordingFit {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::diagnose::corpus::{nominal_twin, protocol_drive, simulate};
+    use crate::diagnose::corpus::{nominal_twin, protocol_drive, saturated, simulate};
     use crate::fan::tests::Reversed;
 
     /// A contact that rises slowly out of the noise (a corpus twin at three times its
@@ -1160,18 +1160,9 @@ mod tests {
     /// truth of 6.13.
     #[test]
     fn a_window_ends_where_the_deflection_sits_pinned() {
-        let fs = 4000.0;
-        let mut twin = nominal_twin(1);
-        let drive = protocol_drive(fs).0;
-        let clean = simulate(&twin, &drive, fs, None);
-        let peak = clean.deflection_v.iter().copied().fold(0.0, f64::max);
-        twin.detector.range_v = 0.85 * peak;
-        let rec = simulate(&twin, &drive, fs, None);
-        let first_pinned = rec
-            .deflection_v
-            .iter()
-            .position(|&v| v == 0.85 * peak)
-            .unwrap();
+        let twin = nominal_twin(1);
+        let (_, rec, level) = saturated(&twin, 4000.0, 0.85);
+        let first_pinned = rec.deflection_v.iter().position(|&v| v == level).unwrap();
 
         let fit = fit_recording(&rec, Terms::Fixed(2)).unwrap();
         assert_eq!(fit.prepared.end_index, first_pinned);
@@ -1188,8 +1179,7 @@ mod tests {
         );
 
         // Pinned almost at once, nothing is left to fit: the error says why.
-        twin.detector.range_v = 0.02 * peak;
-        let rec = simulate(&twin, &drive, fs, None);
+        let (_, rec, _) = saturated(&twin, 4000.0, 0.02);
         let e = fit_recording(&rec, Terms::Fixed(2)).unwrap_err();
         assert!(matches!(e, FitError::PinnedAtContact { .. }), "{e}");
     }

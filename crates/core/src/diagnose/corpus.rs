@@ -525,6 +525,24 @@ pub fn simulate(
     }
 }
 
+/// `twin` over the corpus protocol at `fs_hz` with its detector saturating at `fraction` of
+/// the clean record's peak deflection (the twin's `range_v`): the clean record, the
+/// saturated one, and the level its deflection is pinned at, V.
+#[cfg(test)]
+pub(crate) fn saturated(
+    twin: &TwinConfig,
+    fs_hz: f64,
+    fraction: f64,
+) -> (Recording, Recording, f64) {
+    let drive_v = protocol_drive(fs_hz).0;
+    let clean = simulate(twin, &drive_v, fs_hz, None);
+    let peak = clean.deflection_v.iter().copied().fold(0.0, f64::max);
+    let mut limited = twin.clone();
+    limited.detector.range_v = fraction * peak;
+    let rec = simulate(&limited, &drive_v, fs_hz, None);
+    (clean, rec, fraction * peak)
+}
+
 /// RMS of the part of `a − b` that the nominal twin cannot absorb: the difference with its
 /// projection on `q` (an orthonormal basis of the nominal model's tangent space) removed.
 fn rms_diff(a: &[f64], b: &[f64], q: &DMatrix<f64>) -> f64 {

@@ -4258,17 +4258,8 @@ mod tests {
     /// χ² per train sample, that refit at 6.2) and J0 came out 18 times the unclipped one.
     #[test]
     fn a_saturated_detector_is_left_out_and_said_so() {
-        let mut twin = nominal_twin(41);
-        let (drive_v, _) = protocol_drive(FS_HZ);
-        let clean = simulate(&twin, &drive_v, FS_HZ, None);
-        let peak = clean.deflection_v.iter().copied().fold(0.0, f64::max);
-        twin.detector.range_v = 0.85 * peak;
-        let rec = simulate(&twin, &drive_v, FS_HZ, None);
-        let pinned = rec
-            .deflection_v
-            .iter()
-            .filter(|&&v| v == 0.85 * peak)
-            .count();
+        let (clean, rec, level) = super::corpus::saturated(&nominal_twin(41), FS_HZ, 0.85);
+        let pinned = rec.deflection_v.iter().filter(|&&v| v == level).count();
         assert!(pinned > 500, "{pinned} samples pinned");
 
         let whole = diagnose(&clean, &corpus_options()).unwrap();
