@@ -62,6 +62,12 @@ pub enum FitError {
     NoIndentation,
     #[error("the in-contact window has only {0} samples")]
     TooShort(usize),
+    #[error("the {column} column never moves (every sample {value} {unit}), and no reference_deflection_v or measured_height_nm column reads the indentation instead: nothing in the recording pushed the tip into contact; is it the channel the instrument drove?")]
+    StillDrive {
+        column: &'static str,
+        value: f64,
+        unit: &'static str,
+    },
     #[error("the deflection sits pinned at {level_v:.4} V from t = {at_s:.4} s, {after} samples after the contact: the detector or its converter saturated, and a fit needs the force it hid; record within the detector's range (viscoprobe diagnose leaves such samples out)")]
     PinnedAtContact {
         level_v: f64,
@@ -227,6 +233,16 @@ pub fn prepare_with(rec: &Recording, fan: &dyn Fan) -> Result<Prepared, FitError
     let defl = &rec.deflection_v;
     if n < 60 {
         return Err(FitError::TooShort(n));
+    }
+    if let Some(value) = rec.drive.still_at() {
+        if rec.reference_deflection_v.is_none() && rec.measured_height_nm.is_none() {
+            let (column, unit) = (rec.drive.column_name(), rec.drive.unit());
+            return Err(FitError::StillDrive {
+                column,
+                value,
+                unit,
+            });
+        }
     }
     let baseline_over = |upto: usize, tilt: bool| {
         let upto = upto.clamp(20.min(n), n);

@@ -98,6 +98,12 @@ pub enum DiagnoseError {
     InvertedDeflection { noise_v: f64, drop_v: f64 },
     #[error("the recording has only {0} samples; a diagnosis needs at least 1000")]
     TooShort(usize),
+    #[error("the {column} column never moves (every sample {value} {unit}): nothing in the recording pushed the tip into contact, and the nominal twin has no drive to play; is it the channel the instrument drove?")]
+    StillDrive {
+        column: &'static str,
+        value: f64,
+        unit: &'static str,
+    },
     #[error("the nominal twin could not be fitted to this recording (no start gave a finite simulation)")]
     NominalFailed,
     #[error("the nominal material takes 1 to {MAX_NOMINAL_TERMS} Prony terms, not {0}")]
@@ -874,6 +880,17 @@ pub fn diagnose_observed(
             (v.clone(), piezo.gain_nm_per_v, BasePosition::Drive)
         }
     };
+    if let Some(value) = drive.first().filter(|&&d| drive.iter().all(|&x| x == d)) {
+        let (column, unit) = match base_position {
+            BasePosition::HeightSensor => (gaps::HEIGHT, "nm"),
+            _ => (rec.drive.column_name(), rec.drive.unit()),
+        };
+        return Err(DiagnoseError::StillDrive {
+            column,
+            value: *value,
+            unit,
+        });
+    }
     let y = rec.deflection_v.clone();
     let (contact0, base, sigma_head) = find_contact(&y)?;
     // The offline fitter's pair, prepared once: its contact point is the better one where
@@ -4333,6 +4350,29 @@ mod tests {
         assert!(matches!(e, DiagnoseError::NoContact { .. }), "{e}");
         let e = fit_recording(&rec, Terms::Fixed(2)).unwrap_err();
         assert!(matches!(e, FitError::NoContact { .. }), "{e}");
+    }
+
+    /// A drive column that never moves (a channel exported from the wrong output) beside a
+    /// deflection that shows a contact: the diagnosis and the offline fit name the column,
+    /// where the diagnosis named `thermal_drift` on it (a nominal fit at 25 378 χ² per train
+    /// sample) and the fit said only that no physical start value was found. Beside a
+    /// height sensor that moves, the fit reads the indentation there and goes on.
+    #[test]
+    fn a_drive_that_never_moves_is_named() {
+        use super::DiagnoseError;
+        use crate::analysis::{fit_recording, FitError, Terms};
+        let (drive_v, _) = protocol_drive(FS_HZ);
+        let mut rec = simulate(&nominal_twin(41), &drive_v, FS_HZ, None);
+        let height = rec.drive_nm().unwrap();
+        rec.drive = Drive::Volts(vec![0.5; rec.len()]);
+        let e = diagnose(&rec, &corpus_options()).unwrap_err();
+        assert!(matches!(e, DiagnoseError::StillDrive { .. }), "{e}");
+        assert!(e.to_string().contains("drive_v column never moves"), "{e}");
+        assert!(e.to_string().contains("every sample 0.5 V"), "{e}");
+        let e = fit_recording(&rec, Terms::Fixed(2)).unwrap_err();
+        assert!(matches!(e, FitError::StillDrive { .. }), "{e}");
+        rec.measured_height_nm = Some(height);
+        assert!(fit_recording(&rec, Terms::Fixed(2)).is_ok());
     }
 
     /// A channel mostly missing is not made up: it is removed, and named; the rest of the

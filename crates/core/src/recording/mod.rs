@@ -61,11 +61,27 @@ impl Drive {
         }
     }
 
+    /// The column's unit: `V` or `nm`.
+    pub fn unit(&self) -> &'static str {
+        match self {
+            Drive::Volts(_) => "V",
+            Drive::Nanometres(_) => "nm",
+        }
+    }
+
     /// The values, in the column's own unit.
     pub fn values(&self) -> &[f64] {
         match self {
             Drive::Volts(v) | Drive::Nanometres(v) => v,
         }
+    }
+
+    /// The one value every sample holds, where the drive never moves: a column that cannot
+    /// have pushed the tip into contact (a channel exported from the wrong output, say).
+    pub fn still_at(&self) -> Option<f64> {
+        let v = self.values();
+        let first = *v.first()?;
+        v.iter().all(|&x| x == first).then_some(first)
     }
 }
 
