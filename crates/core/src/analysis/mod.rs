@@ -62,6 +62,12 @@ pub enum FitError {
     NoIndentation,
     #[error("the in-contact window has only {0} samples")]
     TooShort(usize),
+    #[error("the record seems to start in contact: its first {samples} samples scatter {first_v:.3e} V rms, over {ratio} times its last {samples} samples' {last_v:.3e} V rms (a free lever scatters alike at both ends); the fit takes the free lever's baseline from the first samples, so record (or keep) the approach before the contact", ratio = START_IN_CONTACT_RATIO)]
+    StartsInContact {
+        samples: usize,
+        first_v: f64,
+        last_v: f64,
+    },
     #[error("the {column} column never moves (every sample {value} {unit}), and no reference_deflection_v or measured_height_nm column reads the indentation instead: nothing in the recording pushed the tip into contact; is it the channel the instrument drove?")]
     StillDrive {
         column: &'static str,
@@ -87,6 +93,36 @@ const INVERTED_SIGMAS: f64 = 20.0;
 /// fit ([`prepare`]) and the diagnosis both apply.
 pub(crate) fn looks_inverted(drop: f64, noise: f64) -> bool {
     drop > INVERTED_SIGMAS * noise
+}
+
+/// How many times the scatter of a record's last samples its first samples may scatter
+/// before the record is read as starting in contact ([`starts_in_contact`]). A free lever
+/// scatters alike at both ends: on the concealed corpus, the independent simulator's
+/// recordings and the shared JPK file, the first samples' scatter came to at most 1.27
+/// times the last samples'; a corpus record cut to begin in contact, to 30 times.
+pub(crate) const START_IN_CONTACT_RATIO: f64 = 5.0;
+
+/// How many samples, and the scatter (V rms, from the median absolute deviation) of the
+/// first and the last samples of `deflection_v` (2 % of the record, 20 to 256 samples: the window the offline
+/// fit takes its free baseline from), where the first scatter over
+/// [`START_IN_CONTACT_RATIO`] times the last: a record cut to begin in contact (its
+/// retract ending free), which has no free lever before the contact to find the contact
+/// and the noise floor from. The offline fit took such a record's first samples for the
+/// free baseline and put J0 nine times off the truth; the diagnosis found no contact.
+pub(crate) fn starts_in_contact(deflection_v: &[f64]) -> Option<(usize, f64, f64)> {
+    let n = deflection_v.len();
+    let w = (n / 50).clamp(20, 256);
+    if n < 2 * w {
+        return None;
+    }
+    let scatter = |v: &[f64]| {
+        let mut v = v.to_vec();
+        let m = median(&mut v);
+        let mut dev: Vec<f64> = v.iter().map(|x| (x - m).abs()).collect();
+        1.4826 * median(&mut dev)
+    };
+    let (first, last) = (scatter(&deflection_v[..w]), scatter(&deflection_v[n - w..]));
+    (last > 0.0 && first > START_IN_CONTACT_RATIO * last).then_some((w, first, last))
 }
 
 /// The error of a force that never rises out of the baseline noise `noise_n`: a sign
@@ -233,6 +269,13 @@ pub fn prepare_with(rec: &Recording, fan: &dyn Fan) -> Result<Prepared, FitError
     let defl = &rec.deflection_v;
     if n < 60 {
         return Err(FitError::TooShort(n));
+    }
+    if let Some((samples, first_v, last_v)) = starts_in_contact(defl) {
+        return Err(FitError::StartsInContact {
+            samples,
+            first_v,
+            last_v,
+        });
     }
     if let Some(value) = rec.drive.still_at() {
         if rec.reference_deflection_v.is_none() && rec.measured_height_nm.is_none() {

@@ -98,6 +98,12 @@ pub enum DiagnoseError {
     InvertedDeflection { noise_v: f64, drop_v: f64 },
     #[error("the recording has only {0} samples; a diagnosis needs at least 1000")]
     TooShort(usize),
+    #[error("the record seems to start in contact: its first {samples} samples scatter {first_v:.3e} V rms, over {ratio} times its last {samples} samples' {last_v:.3e} V rms (a free lever scatters alike at both ends); a diagnosis finds the contact and measures the noise floor on the free lever before it, so record (or keep) the approach", ratio = analysis::START_IN_CONTACT_RATIO)]
+    StartsInContact {
+        samples: usize,
+        first_v: f64,
+        last_v: f64,
+    },
     #[error("the {column} column never moves (every sample {value} {unit}): nothing in the recording pushed the tip into contact, and the nominal twin has no drive to play; is it the channel the instrument drove?")]
     StillDrive {
         column: &'static str,
@@ -892,6 +898,13 @@ pub fn diagnose_observed(
         });
     }
     let y = rec.deflection_v.clone();
+    if let Some((samples, first_v, last_v)) = analysis::starts_in_contact(&y) {
+        return Err(DiagnoseError::StartsInContact {
+            samples,
+            first_v,
+            last_v,
+        });
+    }
     let (contact0, base, sigma_head) = find_contact(&y)?;
     // The offline fitter's pair, prepared once: its contact point is the better one where
     // long-range forces make the force creep out of the noise (it treats the contact as a
@@ -4350,6 +4363,36 @@ mod tests {
         assert!(matches!(e, DiagnoseError::NoContact { .. }), "{e}");
         let e = fit_recording(&rec, Terms::Fixed(2)).unwrap_err();
         assert!(matches!(e, FitError::NoContact { .. }), "{e}");
+    }
+
+    /// A record cut to begin in contact (its first second dropped) has no free lever before
+    /// the contact: the diagnosis and the offline fit say so. The fit took the first samples
+    /// for the free baseline (the corpus's `clean/null/seed1` cut at 0.75 s: J0 56.4 against
+    /// a truth of 6.13 µPa⁻¹), and the diagnosis said only that it found no contact. The same
+    /// record cut to end in contact instead is diagnosed as before.
+    #[test]
+    fn a_record_that_starts_in_contact_is_named_as_such() {
+        use super::DiagnoseError;
+        use crate::analysis::{fit_recording, FitError, Terms};
+        let (drive_v, _) = protocol_drive(FS_HZ);
+        let whole = simulate(&nominal_twin(41), &drive_v, FS_HZ, None);
+        let cut = |range: std::ops::Range<usize>| {
+            let mut rec = whole.clone();
+            rec.time_s = rec.time_s[range.clone()].to_vec();
+            rec.drive = Drive::Volts(drive_v[range.clone()].to_vec());
+            rec.deflection_v = rec.deflection_v[range].to_vec();
+            rec
+        };
+        let n = whole.len();
+        let late = cut(FS_HZ as usize..n);
+        let e = diagnose(&late, &corpus_options()).unwrap_err();
+        assert!(matches!(e, DiagnoseError::StartsInContact { .. }), "{e}");
+        assert!(e.to_string().contains("start in contact"), "{e}");
+        let e = fit_recording(&late, Terms::Fixed(2)).unwrap_err();
+        assert!(matches!(e, FitError::StartsInContact { .. }), "{e}");
+        let early = cut(0..n * 3 / 4);
+        let d = diagnose(&early, &corpus_options()).unwrap();
+        assert_eq!(d.verdict, Verdict::None, "{:?}", d.effects[0]);
     }
 
     /// A drive column that never moves (a channel exported from the wrong output) beside a
