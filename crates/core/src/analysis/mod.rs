@@ -793,11 +793,19 @@ pub fn fit_recording_with(
 ) -> Result<RecordingFit, FitError> {
     // An optional channel's missing samples (the indentation's reference, say) are filled
     // from their neighbours, and the notes say where (`recording::gaps`).
+    // Likewise a single-sample glitch of the deflection (`recording::glitch`).
     let (filled, gaps) = crate::recording::gaps::with_gaps_filled(rec);
-    let prepared = prepare_with(&filled, fan)?;
-    let mut fit = fit_prepared(&filled, prepared, terms, refine_deflection)?;
-    fit.notes
-        .splice(0..0, gaps.channels.iter().map(|g| g.to_string()));
+    let (mended, glitches) = crate::recording::glitch::with_glitches_mended(&filled);
+    let prepared = prepare_with(&mended, fan)?;
+    let mut fit = fit_prepared(&mended, prepared, terms, refine_deflection)?;
+    let mended_note = (!glitches.is_empty()).then(|| {
+        let d = crate::recording::glitch::describe(&glitches, rec.sample_rate_hz);
+        format!("{d}: each replaced by the mean of its neighbours")
+    });
+    fit.notes.splice(
+        0..0,
+        (gaps.channels.iter().map(|g| g.to_string())).chain(mended_note),
+    );
     Ok(fit)
 }
 

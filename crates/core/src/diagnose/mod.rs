@@ -45,7 +45,7 @@ use crate::analysis;
 use crate::estimate::lm::Stall;
 use crate::fan::{self, Fan};
 use crate::prony::PronySeries;
-use crate::recording::{clip, gaps, Drive, Recording};
+use crate::recording::{clip, gaps, glitch, Drive, Recording};
 use crate::twin::actuator::Actuator;
 use crate::twin::TipConfig;
 use fit::{
@@ -857,7 +857,10 @@ pub fn diagnose_observed(
         return Err(DiagnoseError::TooShort(n));
     }
     let (filled, gaps) = gaps::with_gaps_filled(rec);
-    let rec: &Recording = &filled;
+    // A glitch is mended (`glitch`) before the contact and the floor are looked for, and
+    // left out of every χ² with the pinned samples below.
+    let (mended, glitches) = glitch::with_glitches_mended(&filled);
+    let rec: &Recording = &mended;
     let terms = opts.nominal_terms;
     if !(1..=MAX_NOMINAL_TERMS).contains(&terms) {
         return Err(DiagnoseError::NominalTerms(terms));
@@ -960,7 +963,9 @@ pub fn diagnose_observed(
         .iter()
         .flat_map(|c| c.samples.iter().copied())
         .collect();
+    pinned.extend(glitches.iter().map(|g| g.index));
     pinned.sort_unstable();
+    pinned.dedup();
     let left_out = clip::reach(&pinned, noise.ar.len().saturating_sub(1), n);
     let (train, held) = (
         clip::leave_out(&train, &left_out),
@@ -2052,6 +2057,10 @@ pub fn diagnose_observed(
             format!("{d}, and those samples are left out of every fit and χ²")
         })
         .collect();
+    if !glitches.is_empty() {
+        let d = glitch::describe(&glitches, fs);
+        channel_notes.push(format!("{d}: left out of every fit and χ²"));
+    }
     channel_notes.extend(gaps.channels.iter().map(|g| match g.removed {
         true => g.to_string(),
         false => format!(
@@ -4363,6 +4372,34 @@ mod tests {
         assert!(matches!(e, DiagnoseError::NoContact { .. }), "{e}");
         let e = fit_recording(&rec, Terms::Fixed(2)).unwrap_err();
         assert!(matches!(e, FitError::NoContact { .. }), "{e}");
+    }
+
+    /// Two single-sample glitches of ±9.9 V (a converter's or a transfer's error) in a clean
+    /// record: the diagnosis leaves them out and names nothing, the offline fit mends them,
+    /// and both say where. Left in, the same glitches in the corpus's `clean/null/seed1` made
+    /// the diagnosis `unexplained` on a nominal fit at 1800 χ² per train sample, and ended the
+    /// fit's window at the second one with a single Prony term chosen.
+    #[test]
+    fn glitches_are_mended_and_said_so() {
+        use crate::analysis::{fit_recording, Terms};
+        let (drive_v, _) = protocol_drive(FS_HZ);
+        let clean = simulate(&nominal_twin(41), &drive_v, FS_HZ, None);
+        let mut rec = clean.clone();
+        rec.deflection_v[8000] = 9.9;
+        rec.deflection_v[12000] = -9.9;
+        let d = diagnose(&rec, &corpus_options()).unwrap();
+        assert_eq!(d.verdict, Verdict::None, "{:?}", d.effects[0]);
+        assert_eq!(d.channel_notes.len(), 1, "{:?}", d.channel_notes);
+        assert!(d.channel_notes[0].contains("2 single-sample glitches"));
+        let fit = fit_recording(&rec, Terms::Fixed(2)).unwrap();
+        let whole = fit_recording(&clean, Terms::Fixed(2)).unwrap();
+        assert!(fit.notes[0].contains("replaced by the mean of its neighbours"));
+        assert_eq!(fit.prepared.end_index, whole.prepared.end_index);
+        let (j, j_whole) = (fit.estimate.model.j0_per_pa, whole.estimate.model.j0_per_pa);
+        assert!(
+            (j / j_whole - 1.0).abs() < 1e-3,
+            "J0 {j:e} against {j_whole:e} 1/Pa"
+        );
     }
 
     /// A record cut to begin in contact (its first second dropped) has no free lever before

@@ -26,13 +26,15 @@
 //! as `NaN`), only the required columns must be finite; a wrong sample rate is reported once
 //! against the median time step before single uneven steps are looked for. The users of a
 //! recording fill such gaps in the optional channels with [`gaps::with_gaps_filled`], which
-//! says where it did, and find a deflection pinned at a saturated detector's limit with
-//! [`clip::find_clipped`].
+//! says where it did, find a deflection pinned at a saturated detector's limit with
+//! [`clip::find_clipped`], and mend its single-sample glitches with
+//! [`glitch::with_glitches_mended`].
 
 pub mod clip;
 mod csv;
 mod error;
 pub mod gaps;
+pub mod glitch;
 mod sidecar;
 
 use std::io::{Read, Write};
