@@ -156,6 +156,32 @@ fn abort_mid_run_keeps_data_and_retracts() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// A detector that saturates (the twin's `range_v`, 6.6 nN) under the calibration's
+/// approach force (15 nN) and the 40 nN limit: the safety layer trips at the top of the
+/// deflection channel's range, the run fails with the reason and is retracted. The approach
+/// used to push on to the end of the drive range, the force limit blind.
+#[test]
+fn a_saturated_detector_stops_the_run_retracted() {
+    let path = root().join("config/sim-pdms.toml");
+    let (mut cfg, _) = SimConfigFile::load(&path).unwrap();
+    cfg.twin.detector.range_v = 1.2;
+    let dir = std::env::temp_dir().join(format!("vp-loop-pinned-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let cancel = AtomicBool::new(false);
+    let e = run_measurement(&cfg, "", &dir, &cancel, &mut |_| {})
+        .map(|r| r.to_json())
+        .expect_err("the run must stop");
+    let e = format!("{e:#}");
+    assert!(e.contains("SafetyLimit: deflection 1.2000 V"), "{e}");
+    assert!(e.contains("top of its channel's range"), "{e}");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap();
+    assert_eq!(report["status"], "failed");
+    assert_eq!(report["retracted"], true);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// The paper's Sec. III-B variant: the hard-sample deflection predicted from the reference
 /// calibration instead of measured. On the ideal (linear) actuator it reaches the truth too.
 #[test]

@@ -5,6 +5,12 @@
 //! are slowed (both counted in [`SafetyStats`]); a force above the limit trips the layer: the
 //! queued drive is dropped, the actuator ramps to the retract voltage at the slew limit, and
 //! every later call fails with [`HalErrorKind::SafetyLimit`] until [`Guarded::reset`].
+//!
+//! So does a deflection reading at the top of its channel's declared range (within one
+//! LSB): the detector or its converter has saturated, the force it reads is a floor, not the
+//! force, and the force limit can no longer see the sample. A simulated detector saturating
+//! at 6.6 nN under a 40 nN limit let the calibration's approach push on to the end of the
+//! drive range, the force limit blind the whole way.
 
 use crate::error::{HalError, HalErrorKind};
 use crate::instrument::{Capabilities, InputBlock, Instrument, SampleSlot, StreamConfig};
@@ -62,6 +68,8 @@ pub struct Guarded<I: Instrument> {
     tail_v: Option<f64>,
     stats: SafetyStats,
     tripped: Option<String>,
+    /// The deflection channel's declared top and its LSB, V, read at `configure`.
+    deflection_top: Option<(f64, f64)>,
 }
 
 impl<I: Instrument> Guarded<I> {
@@ -74,6 +82,7 @@ impl<I: Instrument> Guarded<I> {
             tail_v: None,
             stats: SafetyStats::default(),
             tripped: None,
+            deflection_top: None,
         }
     }
 
@@ -185,6 +194,9 @@ impl<I: Instrument> Instrument for Guarded<I> {
         self.inner.configure(cfg)?;
         self.fs_hz = Some(cfg.sample_rate_hz);
         self.block_len = cfg.block_len;
+        let inputs = self.inner.capabilities().inputs;
+        self.deflection_top =
+            (inputs.get(self.limits.force.channel)).map(|c| (c.range.max_v, c.range.lsb_v()));
         Ok(())
     }
 
@@ -219,18 +231,26 @@ impl<I: Instrument> Instrument for Guarded<I> {
         };
         let cal = self.limits.force;
         if let Some(ch) = block.channels.get(cal.channel) {
-            if let Some((i, f)) = ch
-                .iter()
-                .map(|&v| cal.force_n(v))
-                .enumerate()
-                .find(|(_, f)| *f > self.limits.max_force_n)
+            let over = |v: f64| cal.force_n(v) > self.limits.max_force_n;
+            let pinned = |v: f64| {
+                self.deflection_top
+                    .is_some_and(|(top, lsb)| v >= top - lsb && cal.force_n(v) > 0.0)
+            };
+            if let Some((i, v)) =
+                (ch.iter().copied().enumerate()).find(|&(_, v)| over(v) || pinned(v))
             {
-                let why = format!(
-                    "force {:.3} nN at sample {} exceeds the limit {:.3} nN",
-                    f * 1e9,
-                    block.first_sample + i as u64,
-                    self.limits.max_force_n * 1e9
-                );
+                let sample = block.first_sample + i as u64;
+                let limit_nn = self.limits.max_force_n * 1e9;
+                let why = match over(v) {
+                    true => format!(
+                        "force {:.3} nN at sample {sample} exceeds the limit {limit_nn:.3} nN",
+                        cal.force_n(v) * 1e9,
+                    ),
+                    false => format!(
+                        "deflection {v:.4} V at sample {sample} is at the top of its channel's range: the detector or its converter saturated, and the force on the sample, {:.3} nN or more, is no longer known against the limit {limit_nn:.3} nN",
+                        cal.force_n(v) * 1e9,
+                    ),
+                };
                 self.stats.trips += 1;
                 let retract = self.retract();
                 self.tripped = Some(why.clone());

@@ -29,6 +29,20 @@ const RANGE: ChannelRange = ChannelRange {
     bits: 16,
 };
 
+/// The deflection channel's range: the converter's, or the twin's detector's own
+/// (`detector.range_v`) where that saturates first, as a real instrument would declare it.
+fn deflection_range(twin: &TwinConfig) -> ChannelRange {
+    let r = twin.detector.range_v;
+    match r > 0.0 && r < RANGE.max_v {
+        true => ChannelRange {
+            min_v: -r,
+            max_v: r,
+            bits: RANGE.bits,
+        },
+        false => RANGE,
+    }
+}
+
 /// The simulated instrument.
 pub struct SimulatedSpm {
     config: TwinConfig,
@@ -85,7 +99,7 @@ impl Instrument for SimulatedSpm {
     fn capabilities(&self) -> Capabilities {
         let mut inputs = vec![InputChannel {
             name: "deflection_v".into(),
-            range: RANGE,
+            range: deflection_range(&self.config),
         }];
         if self.config.height_sensor.is_some() {
             inputs.push(InputChannel {
@@ -177,6 +191,7 @@ impl Instrument for SimulatedSpm {
                 ),
             ));
         }
+        let deflection = deflection_range(&self.config);
         let twin = self.twin.as_mut().expect("configured");
         let mut defl = Vec::with_capacity(cfg.block_len);
         let mut height = Vec::new();
@@ -185,7 +200,7 @@ impl Instrument for SimulatedSpm {
         for _ in 0..cfg.block_len {
             let v = self.queue.pop_front().expect("length checked");
             let s = twin.step(v);
-            defl.push(RANGE.quantise(s.deflection_v));
+            defl.push(deflection.quantise(s.deflection_v));
             if let Some(h) = s.measured_height_nm {
                 height.push(h);
             }

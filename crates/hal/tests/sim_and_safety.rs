@@ -67,7 +67,11 @@ fn limits() -> SafetyLimits {
 const FS: f64 = 8000.0;
 
 fn started(block: usize) -> Guarded<SimulatedSpm> {
-    let mut g = Guarded::new(SimulatedSpm::new(twin(), Pacing::Simulated), limits());
+    started_with(twin(), block)
+}
+
+fn started_with(twin: TwinConfig, block: usize) -> Guarded<SimulatedSpm> {
+    let mut g = Guarded::new(SimulatedSpm::new(twin, Pacing::Simulated), limits());
     g.configure(&StreamConfig {
         sample_rate_hz: FS,
         block_len: block,
@@ -148,6 +152,36 @@ fn force_limit_trips_and_retracts() {
     assert_eq!(
         g.write_drive(&[0.0]).unwrap_err().kind,
         HalErrorKind::SafetyLimit
+    );
+}
+
+/// A detector that saturates below the force limit (0.5 V, 2.8 nN, under 5 nN) reads a
+/// floor, not the force: the layer trips at the top of the deflection channel's declared
+/// range and retracts, where the force limit alone never saw the sample.
+#[test]
+fn a_saturated_detector_trips_and_retracts() {
+    let mut t = twin();
+    t.detector.range_v = 0.5;
+    let mut g = started_with(t, 80);
+    let range = g.capabilities().inputs[0].range;
+    assert_eq!((range.min_v, range.max_v), (-0.5, 0.5));
+    let ramp: Vec<f64> = (0..8000).map(|k| k as f64 * 3.0 / 8000.0).collect();
+    g.write_drive(&ramp).unwrap();
+    let err = (0..100)
+        .find_map(|_| g.read_block().err())
+        .expect("the layer must trip");
+    assert_eq!(err.kind, HalErrorKind::SafetyLimit);
+    assert!(
+        err.detail.contains("deflection 0.5000 V")
+            && err.detail.contains("top of its channel's range"),
+        "{}",
+        err.detail
+    );
+    assert!(err.detail.contains("retracted"), "{}", err.detail);
+    assert!(
+        (g.last_drive() - (-2.0)).abs() < 1e-3,
+        "at {} V",
+        g.last_drive()
     );
 }
 

@@ -484,8 +484,15 @@ fn run_inner(
             &rec,
         )?;
 
-        // Force and indentation over the recorded periods → u, y → estimate (pooled).
+        // A deflection pinned at the detector's limit carries no force there: no estimate.
         let w = played.start..played.start + np * plan.periods;
+        refuse_pinned(iteration, "the sample", &played.deflection[w.clone()], np)?;
+        if plan.reference == ReferenceMode::Measured {
+            let r = &reference.deflection[reference.start..reference.start + np * plan.periods];
+            refuse_pinned(iteration, "the hard reference", r, np)?;
+        }
+
+        // Force and indentation over the recorded periods → u, y → estimate (pooled).
         raw_records.push(RawRecord {
             deflection: played.deflection[w.clone()].to_vec(),
             reference: reference.deflection[reference.start..reference.start + np * plan.periods]
@@ -677,6 +684,32 @@ fn record_spectra(r: &RawRecord, k: f64, c: &UyContext) -> anyhow::Result<Period
     )?)
 }
 
+/// An error where the deflection recorded on `on` (whole periods of `np` samples) sat
+/// pinned at a limit of the detector or its converter (`recording::clip`): the spectra of a
+/// flat top are not the force's, and the run stops with its acquisition written. The noise
+/// the rule needs is read from the difference of the first two periods.
+fn refuse_pinned(iteration: usize, on: &str, deflection: &[f64], np: usize) -> anyhow::Result<()> {
+    let sigma = match deflection.len() >= 2 * np && np > 0 {
+        true => {
+            let d2: f64 = (0..np)
+                .map(|i| (deflection[np + i] - deflection[i]).powi(2))
+                .sum();
+            (d2 / (2.0 * np as f64)).sqrt()
+        }
+        false => 0.0,
+    };
+    match viscoprobe_core::recording::clip::find_clipped(deflection, sigma).first() {
+        Some(c) => bail!(
+            "iteration {iteration}: the deflection on {on} sat pinned at its {} value, {:.4} V, on {} of {} recorded samples: the detector or its converter saturated, and no estimate is made from a flat top; lower [run] preload_nn or force_rms_nn, or re-centre the photodiode",
+            if c.high { "largest" } else { "smallest" },
+            c.level_v,
+            c.samples.len(),
+            deflection.len()
+        ),
+        None => Ok(()),
+    }
+}
+
 /// Plays `drive` (one period) for one warm-up period and `periods` recorded ones.
 fn play(s: &mut Session, drive: &[f64], periods: usize) -> anyhow::Result<Played> {
     let np = drive.len();
@@ -849,4 +882,35 @@ fn utc_stamp(secs: u64) -> String {
 /// The truth of a simulated run, when there is one.
 pub fn truth_of(cfg: &SimConfigFile) -> PronySeries {
     cfg.twin.sample.material.clone()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::refuse_pinned;
+
+    /// Two periods of a noisy sine: at its own peaks it passes; pinned at 80 % of them (a
+    /// photodiode saturating under the converter's range) it stops the run, naming the
+    /// iteration, the sample or reference, and the level.
+    #[test]
+    fn a_pinned_deflection_is_refused() {
+        let np = 1000;
+        let mut state = 7u64;
+        let sine: Vec<f64> = (0..2 * np)
+            .map(|k| {
+                state = state
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                let noise = ((state >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 0.01;
+                1.0 + 0.5 * (k as f64 * 2.0 * std::f64::consts::PI / np as f64).sin() + noise
+            })
+            .collect();
+        assert!(refuse_pinned(3, "the sample", &sine, np).is_ok());
+        let pinned: Vec<f64> = sine.iter().map(|v| v.min(1.4)).collect();
+        let e = refuse_pinned(3, "the hard reference", &pinned, np).unwrap_err();
+        let e = e.to_string();
+        assert!(
+            e.starts_with("iteration 3: the deflection on the hard reference sat pinned at its largest value, 1.4000 V"),
+            "{e}"
+        );
+    }
 }
