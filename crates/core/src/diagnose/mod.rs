@@ -312,6 +312,9 @@ pub struct Diagnosis {
     /// Whitened, σ-normalised residuals (before and after), for spectra against the floor.
     pub whitened_before: Vec<f64>,
     pub whitened_after: Vec<f64>,
+    /// Samples left out of every χ² (a deflection pinned at its limit and a glitch, with the
+    /// whitening's reach after each; [`clip`], [`glitch`]), ascending.
+    pub left_out: Vec<usize>,
     /// Twin simulations run, by stage: the cost of the diagnosis.
     pub simulations: Simulations,
     pub base_position: BasePosition,
@@ -2097,6 +2100,7 @@ pub fn diagnose_observed(
         t_s,
         whitened_before: white_nom,
         whitened_after: white_final,
+        left_out: problem.left_out.clone(),
         simulations,
         base_position,
         weighting: problem.weighting(),

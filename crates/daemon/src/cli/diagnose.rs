@@ -699,11 +699,22 @@ fn residual_time(path: &Path, d: &Diagnosis) -> anyhow::Result<()> {
         .zip(&d.model_after_v)
         .map(|(a, b)| (a - b) * 1e3)
         .collect();
-    let lim = rb
-        .iter()
-        .chain(&ra)
-        .fold(0.0f64, |m, v| m.max(v.abs()))
+    // The samples left out of every χ² (a pinned deflection, a glitch) are shaded, and kept
+    // out of the scale: a flat top's residual would squash every other to a line.
+    let mut shown = vec![true; rb.len()];
+    for &k in &d.left_out {
+        if let Some(s) = shown.get_mut(k) {
+            *s = false;
+        }
+    }
+    let lim = (rb.iter().zip(&ra).zip(&shown))
+        .filter(|(_, &s)| s)
+        .fold(0.0f64, |m, ((b, a), _)| m.max(b.abs()).max(a.abs()))
         .max(1e-6);
+    let (rb, ra): (Vec<f64>, Vec<f64>) = (
+        rb.iter().map(|v| v.clamp(-lim, lim)).collect(),
+        ra.iter().map(|v| v.clamp(-lim, lim)).collect(),
+    );
     let t_end = *d.t_s.last().unwrap_or(&1.0);
     let root = canvas(path, PLOT_SIZE)?;
     let mut chart = ChartBuilder::on(&root)
@@ -736,6 +747,24 @@ fn residual_time(path: &Path, d: &Diagnosis) -> anyhow::Result<()> {
             .label(p.name)
             .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 12, y + 5)], c.filled()));
     }
+    let left_out = left_out_runs(&d.left_out);
+    if !left_out.is_empty() {
+        let grey = BLACK.mix(0.25);
+        let bars = left_out.iter().map(|r| {
+            Rectangle::new(
+                [
+                    (r.start as f64 / d.fs_hz, -lim),
+                    (r.end as f64 / d.fs_hz, lim),
+                ],
+                grey.filled(),
+            )
+        });
+        chart
+            .draw_series(bars)
+            .map_err(err)?
+            .label("left out (pinned or glitch; clipped to the scale)")
+            .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 12, y + 5)], grey.filled()));
+    }
     chart
         .draw_series(LineSeries::new(decimate(&rb, &d.t_s, 5000), RED.mix(0.7)))
         .map_err(err)?
@@ -749,6 +778,18 @@ fn residual_time(path: &Path, d: &Diagnosis) -> anyhow::Result<()> {
     draw_legend(&mut chart)?;
     root.present().map_err(err)?;
     Ok(())
+}
+
+/// The ascending sample indices `k` as runs of consecutive ones.
+fn left_out_runs(k: &[usize]) -> Vec<std::ops::Range<usize>> {
+    let mut runs: Vec<std::ops::Range<usize>> = vec![];
+    for &i in k {
+        match runs.last_mut() {
+            Some(r) if r.end == i => r.end = i + 1,
+            _ => runs.push(i..i + 1),
+        }
+    }
+    runs
 }
 
 /// Periodogram of the whitened residual, averaged in 1/12-decade bins: 1 is the noise floor.
@@ -1038,6 +1079,17 @@ pub fn run_bench(args: BenchArgs) -> anyhow::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The left-out samples are shaded as runs: consecutive ones make one, a gap starts the
+    /// next.
+    #[test]
+    fn left_out_samples_are_shaded_as_runs() {
+        assert_eq!(
+            left_out_runs(&[3, 4, 5, 9, 11, 12]),
+            vec![3..6, 9..10, 11..13]
+        );
+        assert!(left_out_runs(&[]).is_empty());
+    }
 
     /// Each stage of a diagnosis reads as a line with its numbers and names; the second
     /// round says why it came, and a judgement with nothing significant says so.
