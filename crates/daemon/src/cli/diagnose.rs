@@ -999,7 +999,14 @@ pub fn run_bench(args: BenchArgs) -> anyhow::Result<()> {
             let csv = dir.join(format!("{stem}.csv"));
             crate::cli::simulate::write_atomic(&csv, &csv.with_extension("toml"), &c.recording)?;
         }
-        eprintln!("wrote {} recordings to {}", cases.len(), dir.display());
+        // Without the corpus's order, a diagnosis of a written case fits three terms, takes
+        // up its missing_relaxation and names nothing: say how the bench reads them.
+        let terms = viscoprobe_core::diagnose::corpus::MATERIAL_TERMS;
+        eprintln!(
+            "wrote {} recordings to {}; diagnose one as the bench does with `viscoprobe diagnose FILE.csv --prony-terms {terms}` (the corpus's material has {terms} terms)",
+            cases.len(),
+            dir.display()
+        );
     }
     let quiet = args.json;
     let outcomes = run_corpus(&cases, args.threads, |o, k, n| {
