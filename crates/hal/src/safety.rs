@@ -195,8 +195,11 @@ impl<I: Instrument> Instrument for Guarded<I> {
         self.fs_hz = Some(cfg.sample_rate_hz);
         self.block_len = cfg.block_len;
         let inputs = self.inner.capabilities().inputs;
-        self.deflection_top =
-            (inputs.get(self.limits.force.channel)).map(|c| (c.range.max_v, c.range.lsb_v()));
+        // A range a backend declares without a finite top or step (no converter behind it)
+        // gives no check rather than one that trips on every reading.
+        self.deflection_top = (inputs.get(self.limits.force.channel))
+            .map(|c| (c.range.max_v, c.range.lsb_v()))
+            .filter(|(top, lsb)| top.is_finite() && lsb.is_finite() && *lsb >= 0.0);
         Ok(())
     }
 

@@ -103,8 +103,8 @@ pub(crate) fn looks_inverted(drop: f64, noise: f64) -> bool {
 pub(crate) const START_IN_CONTACT_RATIO: f64 = 5.0;
 
 /// How many samples, and the scatter (V rms, from the median absolute deviation) of the
-/// first and the last samples of `deflection_v` (2 % of the record, 20 to 256 samples: the window the offline
-/// fit takes its free baseline from), where the first scatter over
+/// first and the last samples of `deflection_v` (2 % of the record, 20 to 256 samples: the
+/// window the offline fit takes its free baseline from), where the first scatter over
 /// [`START_IN_CONTACT_RATIO`] times the last: a record cut to begin in contact (its
 /// retract ending free), which has no free lever before the contact to find the contact
 /// and the noise floor from. The offline fit took such a record's first samples for the

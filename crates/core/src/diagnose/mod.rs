@@ -333,9 +333,10 @@ pub struct Diagnosis {
     /// reference reads the alignment the format promises; `None` without a reference.
     pub reference_contact_offset_nm: Option<f64>,
     /// What became of the channels the diagnosis did not use as recorded: a deflection
-    /// pinned at its limit, those samples left out ([`clip`]); missing samples of the optional
-    /// channels (`reference_deflection_v`, `measured_height_nm`) filled or left out
-    /// ([`gaps`]), or such a channel not used at all, and why. One plain sentence each.
+    /// pinned at its limit or glitched, those samples left out ([`clip`], [`glitch`]);
+    /// missing samples of the optional channels (`reference_deflection_v`,
+    /// `measured_height_nm`) filled or left out ([`gaps`]), or such a channel not used at
+    /// all, and why. One plain sentence each.
     pub channel_notes: Vec<String>,
     /// Catalog effects that can hide in the nominal model on this recording's channels, up to
     /// a bound the fit gives ([`BlindSpot`]): a verdict of none cannot speak for them.
@@ -959,8 +960,9 @@ pub fn diagnose_observed(
     events.extend(snap);
     events.extend(drive_steps(&drive, block));
     let (train, held) = split_train_held(n, block, anchor, &events);
-    // Samples pinned at the channel's limit say only that the force was beyond it: they are
-    // left out of every χ² (`clip`), with the whitening's reach after each.
+    // Samples pinned at the channel's limit say only that the force was beyond it, and a
+    // glitch's value was mended, not measured: both are left out of every χ² (`clip`), with
+    // the whitening's reach after each.
     let clips = clip::find_clipped(&y, sigma_head);
     let mut pinned: Vec<usize> = clips
         .iter()
