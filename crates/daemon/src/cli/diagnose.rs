@@ -1003,8 +1003,9 @@ pub fn run_bench(args: BenchArgs) -> anyhow::Result<()> {
         // up its missing_relaxation and names nothing: say how the bench reads them.
         let terms = viscoprobe_core::diagnose::corpus::MATERIAL_TERMS;
         eprintln!(
-            "wrote {} recordings to {}; diagnose one as the bench does with `viscoprobe diagnose FILE.csv --prony-terms {terms}` (the corpus's material has {terms} terms)",
+            "wrote {} recording{} to {}; diagnose one as the bench does with `viscoprobe diagnose FILE.csv --prony-terms {terms}` (the corpus's material has {terms} terms)",
             cases.len(),
+            if cases.len() == 1 { "" } else { "s" },
             dir.display()
         );
     }
