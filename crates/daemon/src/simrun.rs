@@ -16,7 +16,9 @@ use viscoprobe_core::recording::{Cantilever, Drive, Piezo, Recording, Sample, Si
 use viscoprobe_core::twin::SampleSlot;
 use viscoprobe_hal::acquire::run_drive;
 use viscoprobe_hal::sim::{Pacing, SimulatedSpm};
-use viscoprobe_hal::{ForceCalibration, Guarded, Instrument, SafetyLimits, StreamConfig};
+use viscoprobe_hal::{
+    ForceCalibration, Guarded, HalErrorKind, Instrument, SafetyLimits, StreamConfig,
+};
 
 /// The excitation as given by the user.
 #[derive(Debug, Clone)]
@@ -263,6 +265,9 @@ pub fn simulate_recording(
     let total = profile.drive_v.len();
     // (drive, input channels, per-sample true force and indentation)
     type SlotRun = (Vec<f64>, Vec<Vec<f64>>, Vec<(f64, f64)>);
+    // Whether the last run stopped on the safety layer (a force over the limit, or the
+    // deflection at the top of its range).
+    let tripped = std::cell::Cell::new(false);
     let mut run = |inst: &mut Guarded<SimulatedSpm>,
                    slot: SampleSlot,
                    label: &str|
@@ -277,6 +282,7 @@ pub fn simulate_recording(
             let end = (done + chunk).min(total);
             let part =
                 run_drive(inst, &profile.drive_v[done..end], block, |_| {}).map_err(|e| {
+                    tripped.set(e.error.kind == HalErrorKind::SafetyLimit);
                     anyhow::anyhow!(
                         "{label} run failed after {} samples: {}",
                         done + e.acquired.len(),
@@ -300,7 +306,19 @@ pub fn simulate_recording(
         truth.truncate(total);
         Ok((acq.drive_v, acq.channels, truth))
     };
-    let (_, ref_ch, _) = run(&mut inst, SampleSlot::Reference, "reference")?;
+    // The hard reference takes the whole base travel as deflection: a drive made for a soft
+    // sample can push it past the force limit or the detector's range (a cone in a soft gel
+    // indents 1.2 µm at 8 nN, 14 V of deflection on the reference). The safety layer stops
+    // that run; the recording is then written without the reference channel, and its notes
+    // say why, rather than with a reference clipped at the converter's top as it once was.
+    let reference = match run(&mut inst, SampleSlot::Reference, "reference") {
+        Ok((_, ch, _)) => Ok(ch),
+        Err(e) if tripped.get() => {
+            inst.reset();
+            Err(format!("{e:#}"))
+        }
+        Err(e) => return Err(e),
+    };
     let (drive, ch, truth) = run(&mut inst, SampleSlot::Soft, "sample")?;
     let t = &cfg.twin;
 
@@ -334,6 +352,12 @@ pub fn simulate_recording(
             "true_force_n and true_indentation_m are the simulator's ground truth".into(),
         ),
     );
+    if let Err(why) = &reference {
+        notes.insert(
+            "reference_deflection_v".into(),
+            toml::Value::String(format!("not recorded: {why}")),
+        );
+    }
     let meta = sidecar_for_twin(t, fs, Some(notes), Some(truth_table));
     let height = if ch.len() > 1 {
         Some(ch[1].clone())
@@ -345,7 +369,7 @@ pub fn simulate_recording(
         time_s: (0..drive.len()).map(|k| k as f64 / fs).collect(),
         drive: Drive::Volts(drive),
         deflection_v: ch[0].clone(),
-        reference_deflection_v: Some(ref_ch[0].clone()),
+        reference_deflection_v: reference.ok().map(|ch| ch[0].clone()),
         measured_height_nm: height,
         extra_columns: vec![
             ("true_force_n".into(), truth.iter().map(|t| t.0).collect()),

@@ -75,6 +75,12 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
     if tty {
         eprintln!();
     }
+    let not_recorded = (rec.meta.notes.as_ref())
+        .and_then(|n| n.get("reference_deflection_v"))
+        .and_then(|v| v.as_str());
+    if let Some(why) = not_recorded {
+        eprintln!("warning: reference_deflection_v {why}");
+    }
     write_atomic(&args.out, &sidecar, &rec)?;
     let elapsed = started.elapsed().as_secs_f64();
     println!(
