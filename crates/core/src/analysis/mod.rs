@@ -62,18 +62,8 @@ pub enum FitError {
     NoIndentation,
     #[error("the in-contact window has only {0} samples")]
     TooShort(usize),
-    #[error("the record seems to start in contact: its first {samples} samples scatter {first_v:.3e} V rms, over {ratio} times its last {samples} samples' {last_v:.3e} V rms (a free lever scatters alike at both ends); the fit takes the free lever's baseline from the first samples, so record (or keep) the approach before the contact", ratio = START_IN_CONTACT_RATIO)]
-    StartsInContact {
-        samples: usize,
-        first_v: f64,
-        last_v: f64,
-    },
-    #[error("the {column} column never moves (every sample {value} {unit}), and no reference_deflection_v or measured_height_nm column reads the indentation instead: nothing in the recording pushed the tip into contact; is it the channel the instrument drove?")]
-    StillDrive {
-        column: &'static str,
-        value: f64,
-        unit: &'static str,
-    },
+    #[error(transparent)]
+    Record(#[from] RecordFault),
     #[error("the deflection sits pinned at {level_v:.4} V from t = {at_s:.4} s, {after} samples after the contact: the detector or its converter saturated, and a fit needs the force it hid; record within the detector's range (viscoprobe diagnose leaves such samples out)")]
     PinnedAtContact {
         level_v: f64,
@@ -82,6 +72,24 @@ pub enum FitError {
     },
     #[error("estimation: {0}")]
     Estimate(#[from] EstimateError),
+}
+
+/// A recording neither the offline fit nor the diagnosis can read, for a reason in the
+/// recording itself: one message each, whichever of the two met it.
+#[derive(Debug, Error)]
+pub enum RecordFault {
+    #[error("the record seems to start in contact: its first {samples} samples scatter {first_v:.3e} V rms, over {ratio} times its last {samples} samples' {last_v:.3e} V rms (a free lever scatters alike at both ends); the baseline, the contact and the noise floor are read on the free lever before the contact, so record (or keep) the approach", ratio = START_IN_CONTACT_RATIO)]
+    StartsInContact {
+        samples: usize,
+        first_v: f64,
+        last_v: f64,
+    },
+    #[error("the {column} column never moves (every sample {value} {unit}): nothing in the recording pushed the tip into contact; is it the channel the instrument drove?")]
+    StillDrive {
+        column: &'static str,
+        value: f64,
+        unit: &'static str,
+    },
 }
 
 /// Below the baseline by this many noise σ, a signal that never rises above it is a
@@ -96,33 +104,53 @@ pub(crate) fn looks_inverted(drop: f64, noise: f64) -> bool {
 }
 
 /// How many times the scatter of a record's last samples its first samples may scatter
-/// before the record is read as starting in contact ([`starts_in_contact`]). A free lever
+/// before the record is read as starting in contact ([`check_starts_free`]). A free lever
 /// scatters alike at both ends: on the concealed corpus, the independent simulator's
 /// recordings and the shared JPK file, the first samples' scatter came to at most 1.27
 /// times the last samples'; a corpus record cut to begin in contact, to 30 times.
-pub(crate) const START_IN_CONTACT_RATIO: f64 = 5.0;
+const START_IN_CONTACT_RATIO: f64 = 5.0;
 
-/// How many samples, and the scatter (V rms, from the median absolute deviation) of the
-/// first and the last samples of `deflection_v` (2 % of the record, 20 to 256 samples: the
-/// window the offline fit takes its free baseline from), where the first scatter over
-/// [`START_IN_CONTACT_RATIO`] times the last: a record cut to begin in contact (its
-/// retract ending free), which has no free lever before the contact to find the contact
-/// and the noise floor from. The offline fit took such a record's first samples for the
-/// free baseline and put J0 nine times off the truth; the diagnosis found no contact.
-pub(crate) fn starts_in_contact(deflection_v: &[f64]) -> Option<(usize, f64, f64)> {
+/// [`RecordFault::StartsInContact`] where the scatter (V rms, [`median_and_scatter`]) of the
+/// first samples of `deflection_v` is over [`START_IN_CONTACT_RATIO`] times that of its last
+/// (2 % of the record each, 20 to 256 samples: the window the offline fit takes its free
+/// baseline from): a record cut to begin in contact (its retract ending free), which has no
+/// free lever before the contact to find the contact and the noise floor from. The offline
+/// fit took such a record's first samples for the free baseline and put J0 nine times off
+/// the truth; the diagnosis found no contact.
+pub(crate) fn check_starts_free(deflection_v: &[f64]) -> Result<(), RecordFault> {
     let n = deflection_v.len();
     let w = (n / 50).clamp(20, 256);
     if n < 2 * w {
-        return None;
+        return Ok(());
     }
-    let scatter = |v: &[f64]| {
-        let mut v = v.to_vec();
-        let m = median(&mut v);
-        let mut dev: Vec<f64> = v.iter().map(|x| (x - m).abs()).collect();
-        1.4826 * median(&mut dev)
-    };
-    let (first, last) = (scatter(&deflection_v[..w]), scatter(&deflection_v[n - w..]));
-    (last > 0.0 && first > START_IN_CONTACT_RATIO * last).then_some((w, first, last))
+    let (_, first_v) = median_and_scatter(&deflection_v[..w]);
+    let (_, last_v) = median_and_scatter(&deflection_v[n - w..]);
+    match last_v > 0.0 && first_v > START_IN_CONTACT_RATIO * last_v {
+        true => Err(RecordFault::StartsInContact {
+            samples: w,
+            first_v,
+            last_v,
+        }),
+        false => Ok(()),
+    }
+}
+
+/// [`RecordFault::StillDrive`] where `base` (the samples of the column `column`, in `unit`)
+/// holds one value throughout: a column that cannot have pushed the tip into contact (a
+/// channel exported from the wrong output, say).
+pub(crate) fn check_moves(
+    base: &[f64],
+    column: &'static str,
+    unit: &'static str,
+) -> Result<(), RecordFault> {
+    match base.first() {
+        Some(&value) if base.iter().all(|&x| x == value) => Err(RecordFault::StillDrive {
+            column,
+            value,
+            unit,
+        }),
+        _ => Ok(()),
+    }
 }
 
 /// The error of a force that never rises out of the baseline noise `noise_n`: a sign
@@ -176,6 +204,14 @@ pub struct Prepared {
 pub(crate) fn median(x: &mut [f64]) -> f64 {
     x.sort_by(f64::total_cmp);
     x[x.len() / 2]
+}
+
+/// The median of `x` and its scatter about it, `1.4826·median|x − median|` (the σ of
+/// Gaussian noise, untouched by a few outliers).
+pub(crate) fn median_and_scatter(x: &[f64]) -> (f64, f64) {
+    let m = median(&mut x.to_vec());
+    let mut dev: Vec<f64> = x.iter().map(|v| (v - m).abs()).collect();
+    (m, 1.4826 * median(&mut dev))
 }
 
 /// `v ≈ a + b·x` over the free approach; `b` only when it stands 4σ clear of zero.
@@ -270,22 +306,10 @@ pub fn prepare_with(rec: &Recording, fan: &dyn Fan) -> Result<Prepared, FitError
     if n < 60 {
         return Err(FitError::TooShort(n));
     }
-    if let Some((samples, first_v, last_v)) = starts_in_contact(defl) {
-        return Err(FitError::StartsInContact {
-            samples,
-            first_v,
-            last_v,
-        });
-    }
-    if let Some(value) = rec.drive.still_at() {
-        if rec.reference_deflection_v.is_none() && rec.measured_height_nm.is_none() {
-            let (column, unit) = (rec.drive.column_name(), rec.drive.unit());
-            return Err(FitError::StillDrive {
-                column,
-                value,
-                unit,
-            });
-        }
+    check_starts_free(defl)?;
+    // A reference or a height sensor reads the indentation where the drive does not.
+    if rec.reference_deflection_v.is_none() && rec.measured_height_nm.is_none() {
+        check_moves(drive, rec.drive.column_name(), rec.drive.unit())?;
     }
     let baseline_over = |upto: usize, tilt: bool| {
         let upto = upto.clamp(20.min(n), n);
@@ -345,11 +369,11 @@ pub fn prepare_with(rec: &Recording, fan: &dyn Fan) -> Result<Prepared, FitError
         });
     }
     let end = pinned.map_or(end, |(k, _)| k);
-    let pinned = pinned.map(|(_, c)| c.describe(n, rec.sample_rate_hz));
+    let pinned_note = pinned.map(|(_, c)| c.describe(n, rec.sample_rate_hz));
     let build = |contact: usize| {
         let p = build_window(rec, &bl, &force, contact, end, contact != walkback);
         p.map(|p| Prepared {
-            pinned: pinned.clone(),
+            pinned: pinned_note.clone(),
             ..p
         })
     };

@@ -262,10 +262,9 @@ fn signature_limit(
         held: needed.held * inflation,
     };
     // Its size is read where the recording shows it: not where the deflection sat pinned.
-    let every: Vec<usize> = (0..d_raw.len()).collect();
-    let seen_raw: Vec<f64> = crate::recording::clip::leave_out(&every, &problem.left_out)
-        .into_iter()
-        .map(|k| d_raw[k])
+    let seen_raw: Vec<f64> = (d_raw.iter().enumerate())
+        .filter(|(k, _)| problem.left_out.binary_search(k).is_err())
+        .map(|(_, &d)| d)
         .collect();
     let (scale, limit) = limit_of(&seen_raw, &d_w, held_energy, tangent, needed, noise.sigma_v)?;
     Some((
@@ -277,13 +276,13 @@ fn signature_limit(
     ))
 }
 
-/// [`detection_limit`] from the signature itself: raw (V, every sample the recording shows), whitened on the
-/// train samples (χ² units), and its whitened energy on the held-out ones. The held-out part
-/// is taken to stay visible in the train part's share: the nominal refit's take, fitted on
-/// the train samples, carries over to the held-out ones as a whole. Its own energy is
-/// counted, not a share of the train's by the samples' count: a signature on a few fast
-/// edges splits between the two sets as those edges fall. Returns the scale of the
-/// signature at the limit and the limit (its size parameter left for the caller).
+/// [`detection_limit`] from the signature itself: raw (V, every sample the recording shows),
+/// whitened on the train samples (χ² units), and its whitened energy on the held-out ones. The
+/// held-out part is taken to stay visible in the train part's share: the nominal refit's take,
+/// fitted on the train samples, carries over to the held-out ones as a whole. Its own energy is
+/// counted, not a share of the train's by the samples' count: a signature on a few fast edges
+/// splits between the two sets as those edges fall. Returns the scale of the signature at the limit
+/// and the limit (its size parameter left for the caller).
 fn limit_of(
     d_raw: &[f64],
     d_w: &DVector<f64>,

@@ -98,18 +98,8 @@ pub enum DiagnoseError {
     InvertedDeflection { noise_v: f64, drop_v: f64 },
     #[error("the recording has only {0} samples; a diagnosis needs at least 1000")]
     TooShort(usize),
-    #[error("the record seems to start in contact: its first {samples} samples scatter {first_v:.3e} V rms, over {ratio} times its last {samples} samples' {last_v:.3e} V rms (a free lever scatters alike at both ends); a diagnosis finds the contact and measures the noise floor on the free lever before it, so record (or keep) the approach", ratio = analysis::START_IN_CONTACT_RATIO)]
-    StartsInContact {
-        samples: usize,
-        first_v: f64,
-        last_v: f64,
-    },
-    #[error("the {column} column never moves (every sample {value} {unit}): nothing in the recording pushed the tip into contact, and the nominal twin has no drive to play; is it the channel the instrument drove?")]
-    StillDrive {
-        column: &'static str,
-        value: f64,
-        unit: &'static str,
-    },
+    #[error(transparent)]
+    Record(#[from] analysis::RecordFault),
     #[error("the nominal twin could not be fitted to this recording (no start gave a finite simulation)")]
     NominalFailed,
     #[error("the nominal material takes 1 to {MAX_NOMINAL_TERMS} Prony terms, not {0}")]
@@ -665,12 +655,8 @@ fn sensor_parts_from_command(command_nm: &[f64], sensor_nm: &[f64]) -> bool {
 fn find_contact(y: &[f64]) -> Result<(usize, f64, f64), DiagnoseError> {
     let n = y.len();
     let head = (n / 20).max(50).min(n);
-    let mut v: Vec<f64> = y[..head].to_vec();
-    v.sort_by(f64::total_cmp);
-    let base = v[v.len() / 2];
-    let mut dev: Vec<f64> = y[..head].iter().map(|x| (x - base).abs()).collect();
-    dev.sort_by(f64::total_cmp);
-    let sigma = (1.4826 * dev[dev.len() / 2]).max(1e-12);
+    let (base, sigma) = analysis::median_and_scatter(&y[..head]);
+    let sigma = sigma.max(1e-12);
     let top = y.iter().copied().fold(f64::NEG_INFINITY, f64::max);
     let thr = (8.0 * sigma).max(0.05 * (top - base));
     let Some(above) = y.iter().position(|x| x - base > thr) else {
@@ -893,25 +879,12 @@ pub fn diagnose_observed(
             (v.clone(), piezo.gain_nm_per_v, BasePosition::Drive)
         }
     };
-    if let Some(value) = drive.first().filter(|&&d| drive.iter().all(|&x| x == d)) {
-        let (column, unit) = match base_position {
-            BasePosition::HeightSensor => (gaps::HEIGHT, "nm"),
-            _ => (rec.drive.column_name(), rec.drive.unit()),
-        };
-        return Err(DiagnoseError::StillDrive {
-            column,
-            value: *value,
-            unit,
-        });
+    match base_position {
+        BasePosition::HeightSensor => analysis::check_moves(&drive, gaps::HEIGHT, "nm")?,
+        _ => analysis::check_moves(&drive, rec.drive.column_name(), rec.drive.unit())?,
     }
     let y = rec.deflection_v.clone();
-    if let Some((samples, first_v, last_v)) = analysis::starts_in_contact(&y) {
-        return Err(DiagnoseError::StartsInContact {
-            samples,
-            first_v,
-            last_v,
-        });
-    }
+    analysis::check_starts_free(&y)?;
     let (contact0, base, sigma_head) = find_contact(&y)?;
     // The offline fitter's pair, prepared once: its contact point is the better one where
     // long-range forces make the force creep out of the noise (it treats the contact as a
@@ -4416,7 +4389,7 @@ mod tests {
     #[test]
     fn a_record_that_starts_in_contact_is_named_as_such() {
         use super::DiagnoseError;
-        use crate::analysis::{fit_recording, FitError, Terms};
+        use crate::analysis::{fit_recording, FitError, RecordFault, Terms};
         let (drive_v, _) = protocol_drive(FS_HZ);
         let whole = simulate(&nominal_twin(41), &drive_v, FS_HZ, None);
         let cut = |range: std::ops::Range<usize>| {
@@ -4429,10 +4402,19 @@ mod tests {
         let n = whole.len();
         let late = cut(FS_HZ as usize..n);
         let e = diagnose(&late, &corpus_options()).unwrap_err();
-        assert!(matches!(e, DiagnoseError::StartsInContact { .. }), "{e}");
+        assert!(
+            matches!(
+                e,
+                DiagnoseError::Record(RecordFault::StartsInContact { .. })
+            ),
+            "{e}"
+        );
         assert!(e.to_string().contains("start in contact"), "{e}");
         let e = fit_recording(&late, Terms::Fixed(2)).unwrap_err();
-        assert!(matches!(e, FitError::StartsInContact { .. }), "{e}");
+        assert!(
+            matches!(e, FitError::Record(RecordFault::StartsInContact { .. })),
+            "{e}"
+        );
         let early = cut(0..n * 3 / 4);
         let d = diagnose(&early, &corpus_options()).unwrap();
         assert_eq!(d.verdict, Verdict::None, "{:?}", d.effects[0]);
@@ -4446,17 +4428,23 @@ mod tests {
     #[test]
     fn a_drive_that_never_moves_is_named() {
         use super::DiagnoseError;
-        use crate::analysis::{fit_recording, FitError, Terms};
+        use crate::analysis::{fit_recording, FitError, RecordFault, Terms};
         let (drive_v, _) = protocol_drive(FS_HZ);
         let mut rec = simulate(&nominal_twin(41), &drive_v, FS_HZ, None);
         let height = rec.drive_nm().unwrap();
         rec.drive = Drive::Volts(vec![0.5; rec.len()]);
         let e = diagnose(&rec, &corpus_options()).unwrap_err();
-        assert!(matches!(e, DiagnoseError::StillDrive { .. }), "{e}");
+        assert!(
+            matches!(e, DiagnoseError::Record(RecordFault::StillDrive { .. })),
+            "{e}"
+        );
         assert!(e.to_string().contains("drive_v column never moves"), "{e}");
         assert!(e.to_string().contains("every sample 0.5 V"), "{e}");
         let e = fit_recording(&rec, Terms::Fixed(2)).unwrap_err();
-        assert!(matches!(e, FitError::StillDrive { .. }), "{e}");
+        assert!(
+            matches!(e, FitError::Record(RecordFault::StillDrive { .. })),
+            "{e}"
+        );
         rec.measured_height_nm = Some(height);
         assert!(fit_recording(&rec, Terms::Fixed(2)).is_ok());
     }

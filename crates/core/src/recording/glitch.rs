@@ -18,6 +18,7 @@
 //! 6.8 (by a port of this rule to Python); on the glitches above, over 1000.
 
 use super::Recording;
+use crate::analysis::median;
 
 /// How many times the local scale of the second difference a glitch's must exceed.
 pub const OVER_LOCAL: f64 = 30.0;
@@ -95,15 +96,6 @@ pub fn describe(glitches: &[Glitch], fs_hz: f64) -> String {
         first as f64 / fs_hz,
         first + 2,
     )
-}
-
-/// The median of `v`, which it sorts; 0 for none.
-fn median(v: &mut [f64]) -> f64 {
-    if v.is_empty() {
-        return 0.0;
-    }
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
 }
 
 #[cfg(test)]

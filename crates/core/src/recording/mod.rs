@@ -77,14 +77,6 @@ impl Drive {
             Drive::Volts(v) | Drive::Nanometres(v) => v,
         }
     }
-
-    /// The one value every sample holds, where the drive never moves: a column that cannot
-    /// have pushed the tip into contact (a channel exported from the wrong output, say).
-    pub fn still_at(&self) -> Option<f64> {
-        let v = self.values();
-        let first = *v.first()?;
-        v.iter().all(|&x| x == first).then_some(first)
-    }
 }
 
 /// One recording: samples, metadata, and what the reader ignored or assumed.
