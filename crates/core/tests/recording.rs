@@ -644,6 +644,51 @@ time_s,drive_v,deflection_v,reference_deflection_v
         assert_eq!(count("model"), 0);
     }
 
+    /// A calibration value typed in the wrong unit is valid, so it reads, but is named with
+    /// the unit slip it most likely is; the spec's own example values give no warning.
+    #[test]
+    fn a_calibration_in_a_likely_wrong_unit_is_warned_of() {
+        assert!(read(SAMPLES, SIDECAR).unwrap().warnings.is_empty());
+        let slipped = SIDECAR
+            .replace(
+                "deflection_sensitivity_nm_per_v = 85.0",
+                "deflection_sensitivity_nm_per_v = 0.085",
+            )
+            .replace(
+                "spring_constant_n_per_m = 0.065",
+                "spring_constant_n_per_m = 65.0",
+            )
+            .replace("radius_nm = 20.0", "radius_nm = 0.02")
+            .replace("gain_nm_per_v = 50.0", "gain_nm_per_v = -0.05");
+        let r = read(SAMPLES, &slipped).unwrap();
+        assert_eq!(r.meta.cantilever.deflection_sensitivity_nm_per_v, 0.085);
+        assert_eq!(r.warnings.len(), 3, "{:#?}", r.warnings);
+        let sensitivity = &r.warnings[0];
+        assert!(
+            sensitivity.starts_with("cantilever.deflection_sensitivity_nm_per_v = 0.085 nm/V")
+                && sensitivity.contains("µm/V"),
+            "{sensitivity}"
+        );
+        assert!(
+            r.warnings[1].starts_with("tip.radius_nm = 0.02 nm"),
+            "{:?}",
+            r.warnings
+        );
+        assert!(
+            r.warnings[2].starts_with("piezo.gain_nm_per_v = -0.05 nm/V"),
+            "{:?}",
+            r.warnings
+        );
+        // 65 N/m is a stiff lever, not a slip.
+        let stiff = SIDECAR.replace(
+            "spring_constant_n_per_m = 0.065",
+            "spring_constant_n_per_m = 650.0",
+        );
+        let r = read(SAMPLES, &stiff).unwrap();
+        assert_eq!(r.warnings.len(), 1, "{:#?}", r.warnings);
+        assert!(r.warnings[0].contains("mN/m"), "{:?}", r.warnings);
+    }
+
     #[test]
     fn missing_poisson_ratio_defaults_to_one_half_with_a_warning() {
         let toml = sidecar_with("poisson_ratio = 0.5", "");
