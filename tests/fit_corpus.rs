@@ -248,7 +248,16 @@ fn recording(cfg: &SimConfigFile, exc: Excitation, dir: &Path, stem: &str) -> Re
 
 /// A recording as another simulator would write it: required columns only, time from 12.5 s,
 /// no reference channel, no `[notes]`/`[truth]`, written by hand (not by this crate).
-fn third_party(rec: &Recording, dir: &Path, stem: &str, drive_in_nm: bool) -> Recording {
+/// `as_height`: `drive_nm` written with its sign reversed, as a height that falls toward
+/// the sample (with `drive_in_nm` only).
+fn third_party(
+    rec: &Recording,
+    dir: &Path,
+    stem: &str,
+    drive_in_nm: bool,
+    as_height: bool,
+) -> Recording {
+    let toward = if as_height { -1.0 } else { 1.0 };
     let fs = rec.sample_rate_hz;
     let gain = rec.meta.piezo.unwrap().gain_nm_per_v;
     let Drive::Volts(dv) = &rec.drive else {
@@ -263,7 +272,7 @@ fn third_party(rec: &Recording, dir: &Path, stem: &str, drive_in_nm: bool) -> Re
     for (i, (d, v)) in dv.iter().zip(&rec.deflection_v).enumerate() {
         let t = 12.5 + i as f64 / fs;
         if drive_in_nm {
-            csv.push_str(&format!("{v:.6e},{t:.9},{:.6}\n", d * gain));
+            csv.push_str(&format!("{v:.6e},{t:.9},{:.6}\n", toward * d * gain));
         } else {
             csv.push_str(&format!("{t:.9},{d:.8e},{v:.6e}\n"));
         }
@@ -504,7 +513,10 @@ fn four_term_relaxation() {
 }
 
 /// Required columns only, `time_s` from 12.5 s, no reference channel, no `[notes]`/`[truth]`:
-/// a multisine with `drive_v` on a sphere, and a ramp-and-hold with `drive_nm` on a cone.
+/// a multisine with `drive_v` on a sphere, and a ramp-and-hold with `drive_nm` on a cone,
+/// once as the format's displacement toward the sample and once as a height that falls
+/// toward it (read reversed, and the notes say so: before that was read, its fit stopped at
+/// "no physical start value found").
 #[test]
 fn third_party_recordings_fit_the_same_way() {
     let dir = tmp("third-party");
@@ -517,6 +529,7 @@ fn third_party_recordings_fit_the_same_way() {
             None,
             Excitation::Multisine,
             false,
+            false,
         ),
         (
             "cone 35°, creep, drive_nm",
@@ -526,9 +539,20 @@ fn third_party_recordings_fit_the_same_way() {
             }),
             Excitation::Creep,
             true,
+            false,
+        ),
+        (
+            "cone 35°, creep, drive_nm as a height",
+            &mats[0].1,
+            Some(TipConfig::Cone {
+                half_angle_deg: 35.0,
+            }),
+            Excitation::Creep,
+            true,
+            true,
         ),
     ];
-    for (label, m, tip, exc, nm) in cases {
+    for (label, m, tip, exc, nm, as_height) in cases {
         let cfg = config(m, tip);
         let rec = recording(&cfg, exc, &dir, "src");
         // The cone indents ~1.2 µm at 8 nN, 14 V of deflection on the hard reference, past the
@@ -536,9 +560,15 @@ fn third_party_recordings_fit_the_same_way() {
         // written without that channel (which a third-party file drops anyway).
         let cone = matches!(tip, Some(TipConfig::Cone { .. }));
         assert_eq!(rec.reference_deflection_v.is_none(), cone, "{label}");
-        let rec = third_party(&rec, &dir, "third", nm);
+        let rec = third_party(&rec, &dir, "third", nm, as_height);
         let fit = fit_recording(&rec, Terms::Auto { max: 5 }).expect(label);
         assert_eq!(fit.prepared.indentation_source, "drive");
+        let reversed = fit
+            .notes
+            .iter()
+            .filter(|n| n.starts_with("drive_nm falls as the tip presses into the sample"))
+            .count();
+        assert_eq!(reversed, usize::from(as_height), "{label}: {:?}", fit.notes);
         match check(label, &fit, m) {
             Ok(l) => eprintln!("{l}"),
             Err(l) => failures.push(l),

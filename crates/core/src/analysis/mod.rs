@@ -479,7 +479,9 @@ fn build_window(
             crate::recording::Drive::Volts(_) => rec
                 .meta
                 .piezo
-                .map_or(0.0, |p| bl.b / p.gain_nm_per_v.max(f64::MIN_POSITIVE)),
+                // A negative gain (an actuator extending on negative voltage) keeps its sign.
+                .filter(|p| p.gain_nm_per_v != 0.0)
+                .map_or(0.0, |p| bl.b / p.gain_nm_per_v),
         },
         indentation_source: source,
         pinned: None,
@@ -820,15 +822,20 @@ pub fn fit_recording_with(
     // Likewise a single-sample glitch of the deflection (`recording::glitch`).
     let (filled, gaps) = crate::recording::gaps::with_gaps_filled(rec);
     let (mended, glitches) = crate::recording::glitch::with_glitches_mended(&filled);
-    let prepared = prepare_with(&mended, fan)?;
-    let mut fit = fit_prepared(&mended, prepared, terms, refine_deflection)?;
+    // A base channel that moves away from the sample as the tip presses in (a height) is
+    // read reversed (`recording::orient`).
+    let (oriented, reversals) = crate::recording::orient::toward_sample(&mended);
+    let prepared = prepare_with(&oriented, fan)?;
+    let mut fit = fit_prepared(&oriented, prepared, terms, refine_deflection)?;
     let mended_note = (!glitches.is_empty()).then(|| {
         let d = crate::recording::glitch::describe(&glitches, rec.sample_rate_hz);
         format!("{d}: each replaced by the mean of its neighbours")
     });
     fit.notes.splice(
         0..0,
-        (gaps.channels.iter().map(|g| g.to_string())).chain(mended_note),
+        (gaps.channels.iter().map(|g| g.to_string()))
+            .chain(mended_note)
+            .chain(reversals.iter().map(|r| r.to_string())),
     );
     Ok(fit)
 }

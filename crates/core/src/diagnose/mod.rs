@@ -886,7 +886,10 @@ pub fn diagnose_observed(
     // A glitch is mended (`glitch`) before the contact and the floor are looked for, and
     // left out of every χ² with the pinned samples below.
     let (mended, glitches) = glitch::with_glitches_mended(&filled);
-    let rec: &Recording = &mended;
+    // A base channel that moves away from the sample as the tip presses in (a height) is
+    // read reversed, and the notes say so (`recording::orient`).
+    let (oriented, reversals) = crate::recording::orient::toward_sample(&mended);
+    let rec: &Recording = &oriented;
     let terms = opts.nominal_terms;
     if !(1..=MAX_NOMINAL_TERMS).contains(&terms) {
         return Err(DiagnoseError::NominalTerms(terms));
@@ -910,9 +913,18 @@ pub fn diagnose_observed(
             (h.clone(), 1.0, BasePosition::HeightSensor)
         }
         (Drive::Nanometres(v), _) => (v.clone(), 1.0, BasePosition::CommandedDisplacement),
+        // An actuator wired to extend on negative voltage has a negative gain, which the
+        // format allows; the twin holds its gain as a logarithm, so the sign goes into the
+        // drive. (Read as it was, such a record failed: no start gave a finite simulation.)
         (Drive::Volts(v), _) => {
-            let piezo = rec.meta.piezo.as_ref().ok_or(DiagnoseError::NoGain)?;
-            (v.clone(), piezo.gain_nm_per_v, BasePosition::Drive)
+            let gain = rec
+                .meta
+                .piezo
+                .as_ref()
+                .ok_or(DiagnoseError::NoGain)?
+                .gain_nm_per_v;
+            let drive = v.iter().map(|x| x * gain.signum()).collect();
+            (drive, gain.abs(), BasePosition::Drive)
         }
     };
     match base_position {
@@ -2076,6 +2088,7 @@ pub fn diagnose_observed(
         let d = glitch::describe(&glitches, fs);
         channel_notes.push(format!("{d}: left out of every fit and χ²"));
     }
+    channel_notes.extend(reversals.iter().map(|r| r.to_string()));
     channel_notes.extend(gaps.channels.iter().map(|g| match g.removed {
         true => g.to_string(),
         false => format!(
@@ -4415,6 +4428,46 @@ mod tests {
         assert!(
             (j / j_whole - 1.0).abs() < 1e-3,
             "J0 {j:e} against {j_whole:e} 1/Pa"
+        );
+    }
+
+    /// Which way the base moves is read from the record: a negative gain the sidecar
+    /// declares (an actuator extending on negative voltage), and a drive in nm written as a
+    /// height that falls toward the sample, are diagnosed as the record the format's way
+    /// round, bit for bit, the second with a note. Before, the first stopped with "no start
+    /// gave a finite simulation" (the twin's gain is a logarithm) and a corpus record written
+    /// the second way was named `thermal_drift` at 955 million χ² units.
+    #[test]
+    fn the_drive_s_direction_is_read_from_the_record() {
+        let (drive_v, _) = protocol_drive(FS_HZ);
+        let rec = simulate(&nominal_twin(41), &drive_v, FS_HZ, None);
+        let d = diagnose(&rec, &corpus_options()).unwrap();
+        assert_eq!(d.verdict, Verdict::None, "{:?}", d.effects[0]);
+        let j0 = |d: &Diagnosis| d.after.material.j0_per_pa;
+        let mut negative = rec.clone();
+        negative.drive = Drive::Volts(drive_v.iter().map(|v| -v).collect());
+        if let Some(p) = negative.meta.piezo.as_mut() {
+            p.gain_nm_per_v = -p.gain_nm_per_v;
+        }
+        let dn = diagnose(&negative, &corpus_options()).unwrap();
+        assert_eq!((dn.verdict, j0(&dn)), (d.verdict, j0(&d)));
+        assert!(dn.channel_notes.is_empty(), "{:?}", dn.channel_notes);
+        let mut height = rec.clone();
+        let gain = rec.meta.piezo.unwrap().gain_nm_per_v;
+        height.drive = Drive::Nanometres(drive_v.iter().map(|v| -gain * v).collect());
+        height.meta.piezo = None;
+        let mut forward = height.clone();
+        forward.drive = Drive::Nanometres(drive_v.iter().map(|v| gain * v).collect());
+        let (dh, df) = (
+            diagnose(&height, &corpus_options()).unwrap(),
+            diagnose(&forward, &corpus_options()).unwrap(),
+        );
+        assert_eq!((dh.verdict, j0(&dh)), (df.verdict, j0(&df)));
+        assert_eq!(dh.channel_notes.len(), 1, "{:?}", dh.channel_notes);
+        assert!(
+            dh.channel_notes[0].starts_with("drive_nm falls as the tip presses into the sample"),
+            "{:?}",
+            dh.channel_notes
         );
     }
 

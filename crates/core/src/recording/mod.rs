@@ -27,14 +27,16 @@
 //! against the median time step before single uneven steps are looked for. The users of a
 //! recording fill such gaps in the optional channels with [`gaps::with_gaps_filled`], which
 //! says where it did, find a deflection pinned at a saturated detector's limit with
-//! [`clip::find_clipped`], and mend its single-sample glitches with
-//! [`glitch::with_glitches_mended`].
+//! [`clip::find_clipped`], mend its single-sample glitches with
+//! [`glitch::with_glitches_mended`], and read a drive that falls toward the sample (a
+//! height) the format's way round with [`orient::toward_sample`].
 
 pub mod clip;
 mod csv;
 mod error;
 pub mod gaps;
 pub mod glitch;
+pub mod orient;
 mod sidecar;
 
 use std::io::{Read, Write};
