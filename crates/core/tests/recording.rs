@@ -689,6 +689,22 @@ time_s,drive_v,deflection_v,reference_deflection_v
         assert!(r.warnings[0].contains("mN/m"), "{:?}", r.warnings);
     }
 
+    /// A deflection column past the ±20 V a photodiode's electronics put out is most
+    /// likely in nm: it reads, with a warning that names the column, value and row.
+    #[test]
+    fn a_deflection_past_a_photodiode_s_range_is_warned_of() {
+        let csv = "time_s,drive_v,deflection_v,reference_deflection_v\n\
+                   0,0,0,0\n0.000125,1,42.5,9.5\n0.00025,2,-3,-19\n";
+        let r = read(csv, SIDECAR).unwrap();
+        assert_eq!(r.deflection_v[1], 42.5);
+        assert_eq!(r.warnings.len(), 1, "{:#?}", r.warnings);
+        assert!(
+            r.warnings[0].starts_with("samples column `deflection_v` reaches 42.5 V (CSV row 3)"),
+            "{:?}",
+            r.warnings
+        );
+    }
+
     #[test]
     fn missing_poisson_ratio_defaults_to_one_half_with_a_warning() {
         let toml = sidecar_with("poisson_ratio = 0.5", "");
@@ -782,8 +798,10 @@ time_s,drive_v,deflection_v,reference_deflection_v
         assert!(toml.starts_with("format = \"recording/1\"\nsample_rate_hz = 8000.0\n"));
         let back = Recording::from_strs(&csv, &toml).unwrap();
         assert_same(&r, &back);
-        assert_eq!(back.warnings.len(), 1, "{:?}", back.warnings); // temp_c
-                                                                   // And writing again gives the same bytes.
+        // temp_c, and the deflection's f64::MAX, past any photodiode.
+        assert_eq!(back.warnings.len(), 2, "{:?}", back.warnings);
+        assert!(back.warnings[1].contains("reaches 1.7977e308 V"));
+        // And writing again gives the same bytes.
         assert_eq!(write(&back), (csv, toml));
     }
 

@@ -109,6 +109,34 @@ pub struct Recording {
     pub warnings: Vec<String>,
 }
 
+/// The most a deflection signal reaches, V: photodiode electronics and their converters
+/// span ±10 V, some ±15 V. Past that, a column is in another unit.
+const PHOTODIODE_LIMIT_V: f64 = 20.0;
+
+/// A warning where a deflection column `column` reaches past [`PHOTODIODE_LIMIT_V`]: such a
+/// column is most likely in nm (or another unit), and every force would scale with it. The
+/// values are kept as written.
+fn beyond_photodiode(column: &str, v: &[f64]) -> Option<String> {
+    let (k, peak) = v
+        .iter()
+        .enumerate()
+        .filter(|(_, x)| x.is_finite())
+        .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))?;
+    (peak.abs() > PHOTODIODE_LIMIT_V).then(|| {
+        let peak = if peak.abs() < 1e6 {
+            peak.to_string()
+        } else {
+            format!("{peak:.4e}")
+        };
+        format!(
+            "samples column `{column}` reaches {peak} V (CSV row {}), past the ±{PHOTODIODE_LIMIT_V} V \
+             a photodiode's electronics put out: is it in nm or another unit? Every force and \
+             indentation scales with it",
+            k + 2
+        )
+    })
+}
+
 /// Reads everything, strips a UTF-8 byte-order mark, checks UTF-8.
 pub(crate) fn read_text(reader: &mut impl Read, file: FileKind) -> Result<String, RecordingError> {
     let mut bytes = Vec::new();
@@ -164,6 +192,12 @@ impl Recording {
             ));
         }
         csv::check_time(&samples.time_s, meta.sample_rate_hz)?;
+        for (column, values) in [
+            (csv::DEFLECTION, Some(&samples.deflection_v)),
+            (csv::REFERENCE, samples.reference_deflection_v.as_ref()),
+        ] {
+            warnings.extend(values.and_then(|v| beyond_photodiode(column, v)));
+        }
         Ok(Recording {
             sample_rate_hz: meta.sample_rate_hz,
             time_s: samples.time_s,
