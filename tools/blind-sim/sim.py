@@ -761,6 +761,20 @@ def case_table():
     # SIM_CASES=nulls (added by viscoprobe, not by the author): sixteen nulls over the make-ups
     # of the default set, half of them with 1/f noise up to 3× the white noise (the default
     # set's nulls go to 2×): a false-positive control beyond the default set's four nulls.
+    # SIM_CASES=fast (added by viscoprobe, not by the author): ten recordings at 50 and
+    # 100 kHz (20 000 samples, 0.4 and 0.2 s), beyond the default set's 5-20 kHz.
+    if os.environ.get("SIM_CASES") == "fast":
+        C.clear()
+        add([], fs=50000, drive="v", exc="multisine")
+        add([], fs=50000, drive="nm", exc="step")
+        add(["adhesion"], fs=50000, drive="v", exc="step")
+        add(["hydrodynamic_drag"], fs=50000, drive="nm", exc="multisine")
+        add(["instrument_resonance"], fs=50000, drive="v", exc="multisine")
+        add(["channel_delay"], fs=50000, drive="v", exc="multisine")
+        add(["mains_interference"], fs=50000, drive="v", exc="step")
+        add(["piezo_hysteresis"], fs=50000, drive="v", exc="multisine")
+        add([], fs=100000, drive="v", exc="multisine")
+        add(["adhesion"], fs=100000, drive="nm", exc="step")
     if os.environ.get("SIM_CASES") == "nulls":
         C.clear()
         for k, (fs, drive, tip, exc) in enumerate([
@@ -794,7 +808,9 @@ def build_case(idx, spec):
         lo, hi = (2.0, 4.0) if e in ("missing_relaxation", "tip_geometry", "substrate_effect") else (1.5, 3.5)
         if len(spec["effects"]) > 1:
             hi = min(hi, 3.0)
-        targets[e] = float(rng.uniform(lo, hi))
+        # SIM_RATIO_SCALE (added by viscoprobe, not by the author): every drawn multiple
+        # times this factor, for effects beyond the near-floor sizes the set was made for.
+        targets[e] = float(rng.uniform(lo, hi)) * float(os.environ.get("SIM_RATIO_SCALE", "1"))
     tune_log = rec.tune(targets, v0, noise) if targets else {}
     full = rec.simulate(spec["effects"])
     return rec, base, full, noise, tune_log, targets
