@@ -933,6 +933,7 @@ pub fn diagnose_observed(
     }
     let y = rec.deflection_v.clone();
     analysis::check_starts_free(&y)?;
+    analysis::check_travel(rec)?;
     let (contact0, base, sigma_head) = find_contact(&y)?;
     // The offline fitter's pair, prepared once: its contact point is the better one where
     // long-range forces make the force creep out of the noise (it treats the contact as a
@@ -4537,6 +4538,37 @@ mod tests {
         );
         rec.measured_height_nm = Some(height);
         assert!(fit_recording(&rec, Terms::Fixed(2)).is_ok());
+    }
+
+    /// A drive written in kV (a thousandth of its volts) moves the base 0.23 nm while the
+    /// lever deflects 62 nm: the diagnosis and the offline fit say the calibration is off,
+    /// naming both travels and the keys to check, where the diagnosis of such a drive named
+    /// `thermal_drift` and the fit found no physical start value. The record as written
+    /// (its lever deflecting 0.27 of its base's travel) passes.
+    #[test]
+    fn a_lever_deflecting_past_its_base_s_travel_is_named() {
+        use super::DiagnoseError;
+        use crate::analysis::{fit_recording, FitError, RecordFault, Terms};
+        let (drive_v, _) = protocol_drive(FS_HZ);
+        let mut rec = simulate(&nominal_twin(41), &drive_v, FS_HZ, None);
+        assert!(crate::analysis::check_travel(&rec).is_ok());
+        rec.drive = Drive::Volts(drive_v.iter().map(|v| v * 1e-3).collect());
+        let e = diagnose(&rec, &corpus_options()).unwrap_err();
+        let DiagnoseError::Record(RecordFault::DeflectsPastBase {
+            deflection_nm,
+            base_nm,
+            ..
+        }) = e
+        else {
+            panic!("{e}")
+        };
+        assert!((deflection_nm / base_nm) > 200.0, "{e}");
+        assert!(e.to_string().contains("piezo.gain_nm_per_v"), "{e}");
+        let e = fit_recording(&rec, Terms::Fixed(2)).unwrap_err();
+        assert!(
+            matches!(e, FitError::Record(RecordFault::DeflectsPastBase { .. })),
+            "{e}"
+        );
     }
 
     /// A channel mostly missing is not made up: it is removed, and named; the rest of the
