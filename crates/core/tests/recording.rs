@@ -201,6 +201,20 @@ time_s,drive_v,deflection_v,reference_deflection_v
         );
         let e = err("drive_v,deflection_v\n0,0\n0,0\n", SIDECAR);
         assert!(matches!(&e.kind, ErrorKind::MissingColumn { name, .. } if name == "time_s"));
+        // What a spreadsheet's export most likely did instead is said.
+        let hint = |csv: &str| err(csv, SIDECAR).to_string();
+        assert!(hint("time_s;drive_v;deflection_v\n0;0;0\n")
+            .ends_with("its columns seem separated by ';': the format separates them by ',' and writes '.' as the decimal point"));
+        assert!(hint("time_s\tdrive_v\tdeflection_v\n0\t0\t0\n").contains("separated by tabs"));
+        assert!(hint("\"time_s\",\"drive_v\",\"deflection_v\"\n0,0,0\n")
+            .ends_with("its names are in double quotes: the format's names are bare (time_s, not \"time_s\")"));
+        let trailing = hint("time_s,drive_v,deflection_v,\n0,0,0,\n");
+        assert!(
+            trailing.ends_with(
+                "column 4 has an empty name (a ',' at the end of the line? the format has none)"
+            ),
+            "{trailing}"
+        );
     }
 
     #[test]
@@ -383,7 +397,10 @@ time_s,drive_v,deflection_v,reference_deflection_v
     #[test]
     fn header_problems() {
         let e = err("time_s,drive_v,,deflection_v\n", SIDECAR);
-        assert!(matches!(e.kind, ErrorKind::EmptyColumnName { position: 3 }));
+        assert!(matches!(
+            e.kind,
+            ErrorKind::EmptyColumnName { position: 3, .. }
+        ));
         let e = err("time_s,drive_v,deflection_v,time_s\n", SIDECAR);
         assert!(matches!(&e.kind, ErrorKind::DuplicateColumn { name } if name == "time_s"));
         let e = err("time_s,drive_v,deflection_v,a\rb\n", SIDECAR);

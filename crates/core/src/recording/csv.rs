@@ -81,7 +81,10 @@ pub(crate) fn parse(text: &str, warnings: &mut Vec<String>) -> Result<Samples, R
         if name.is_empty() {
             return Err(RecordingError::csv(
                 Location::Header,
-                ErrorKind::EmptyColumnName { position: i + 1 },
+                ErrorKind::EmptyColumnName {
+                    position: i + 1,
+                    last: i + 1 == header.len(),
+                },
             ));
         }
         // Control characters (a stray CR, a tab inside a name) are refused here as the writer
@@ -91,7 +94,11 @@ pub(crate) fn parse(text: &str, warnings: &mut Vec<String>) -> Result<Samples, R
                 Location::Header,
                 ErrorKind::BadColumnName {
                     name: name.clone(),
-                    why: CONTROL,
+                    why: if header.len() == 1 && name.contains('\t') {
+                        TABS
+                    } else {
+                        CONTROL
+                    },
                 },
             ));
         }
@@ -296,6 +303,8 @@ pub(crate) fn bad_column_name(name: &str) -> Option<&'static str> {
 }
 
 const CONTROL: &str = "it contains a control character";
+const TABS: &str = "it contains tabs: the columns seem separated by tabs, and the format \
+                    separates them by ','";
 
 /// Writes one value so that it parses back to the same bits: Rust's `{}` and `{:e}` both print
 /// the shortest digits that round-trip; `{}` is more readable in the usual range, `{:e}` keeps

@@ -75,10 +75,12 @@ pub enum ErrorKind {
     #[error("the first line is blank (expected the header)")]
     BlankHeader,
     /// A header field is empty.
-    #[error("column {position} has an empty name")]
+    #[error("column {position} has an empty name{}", if *last { " (a ',' at the end of the line? the format has none)" } else { "" })]
     EmptyColumnName {
         /// 1-based position in the header.
         position: usize,
+        /// Whether it is the header's last field: a separator ending the line.
+        last: bool,
     },
     /// Two columns have the same name.
     #[error("column name `{name}` appears more than once")]
@@ -87,7 +89,7 @@ pub enum ErrorKind {
         name: String,
     },
     /// A required column is not in the header.
-    #[error("missing required column `{name}` (header has: {})", header.join(", "))]
+    #[error("missing required column `{name}` (header has: {}){}", header.join(", "), separator_hint(header))]
     MissingColumn {
         /// The missing column.
         name: String,
@@ -327,3 +329,25 @@ impl fmt::Display for RecordingError {
 // The kind's message (I/O errors included) is part of `Display`, so there is no `source()`:
 // error-chain printers would otherwise repeat it.
 impl std::error::Error for RecordingError {}
+
+/// What a header that lacks a required column most likely holds instead, for the error's
+/// end: the columns separated by ';' (a spreadsheet's export where ',' is the decimal
+/// mark), or names in double quotes; nothing otherwise. (Tabs are a control character,
+/// which the header check names first.)
+fn separator_hint(header: &[String]) -> &'static str {
+    let only = match header {
+        [only] => Some(only.as_str()),
+        _ => None,
+    };
+    if only.is_some_and(|h| h.contains(';')) {
+        "; its columns seem separated by ';': the format separates them by ',' and writes '.' \
+         as the decimal point"
+    } else if header
+        .iter()
+        .any(|h| h.len() >= 2 && h.starts_with('"') && h.ends_with('"'))
+    {
+        "; its names are in double quotes: the format's names are bare (time_s, not \"time_s\")"
+    } else {
+        ""
+    }
+}
