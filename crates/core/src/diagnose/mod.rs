@@ -954,8 +954,9 @@ pub fn diagnose_observed(
     // recording came out twice the true noise, and its adhesion was lost in that floor.
     let snap = find_snap_in(&y, contact, base, sigma_head);
     let touch = snap.unwrap_or(contact);
+    // A gentle pull ahead of the touch ends it where it begins, if that is earlier still.
     let pull = find_pull_ahead(&y, touch, base, sigma_head).unwrap_or(touch);
-    let free_end = pull.saturating_sub((touch / 20).max(5));
+    let free_end = touch.saturating_sub((touch / 20).max(5)).min(pull);
     let noise = noise::measure(&y[..free_end], fs).unwrap_or_else(|| noise::fallback(&y));
     let declared_tip = match rec.meta.tip {
         crate::recording::Tip::Sphere { radius_nm } => TipConfig::Sphere { radius_nm },
