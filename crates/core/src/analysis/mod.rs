@@ -885,25 +885,21 @@ pub fn fit_recording_with(
     refine_deflection: bool,
     fan: &dyn Fan,
 ) -> Result<RecordingFit, FitError> {
-    // An optional channel's missing samples (the indentation's reference, say) are filled
-    // from their neighbours, and the notes say where (`recording::gaps`).
-    // Likewise a single-sample glitch of the deflection (`recording::glitch`).
-    let (filled, gaps) = crate::recording::gaps::with_gaps_filled(rec);
-    let (mended, glitches) = crate::recording::glitch::with_glitches_mended(&filled);
-    // A base channel that moves away from the sample as the tip presses in (a height) is
-    // read reversed (`recording::orient`).
-    let (oriented, reversals) = crate::recording::orient::toward_sample(&mended);
-    let prepared = prepare_with(&oriented, fan)?;
-    let mut fit = fit_prepared(&oriented, prepared, terms, refine_deflection)?;
-    let mended_note = (!glitches.is_empty()).then(|| {
-        let d = crate::recording::glitch::describe(&glitches, rec.sample_rate_hz);
+    // An optional channel's missing samples (the indentation's reference, say) filled from
+    // their neighbours, a single-sample glitch of the deflection mended, a base that falls
+    // toward the sample read reversed (`recording::mended`); the notes say what was done.
+    let (mended, m) = crate::recording::mended(rec);
+    let prepared = prepare_with(&mended, fan)?;
+    let mut fit = fit_prepared(&mended, prepared, terms, refine_deflection)?;
+    let mended_note = (!m.glitches.is_empty()).then(|| {
+        let d = crate::recording::glitch::describe(&m.glitches, rec.sample_rate_hz);
         format!("{d}: each replaced by the mean of its neighbours")
     });
     fit.notes.splice(
         0..0,
-        (gaps.channels.iter().map(|g| g.to_string()))
+        (m.gaps.channels.iter().map(|g| g.to_string()))
             .chain(mended_note)
-            .chain(reversals.iter().map(|r| r.to_string())),
+            .chain(m.reversals.iter().map(|r| r.to_string())),
     );
     Ok(fit)
 }

@@ -882,14 +882,19 @@ pub fn diagnose_observed(
     if n < 1000 {
         return Err(DiagnoseError::TooShort(n));
     }
-    let (filled, gaps) = gaps::with_gaps_filled(rec);
-    // A glitch is mended (`glitch`) before the contact and the floor are looked for, and
-    // left out of every χ² with the pinned samples below.
-    let (mended, glitches) = glitch::with_glitches_mended(&filled);
-    // A base channel that moves away from the sample as the tip presses in (a height) is
-    // read reversed, and the notes say so (`recording::orient`).
-    let (oriented, reversals) = crate::recording::orient::toward_sample(&mended);
-    let rec: &Recording = &oriented;
+    // Gaps filled, glitches mended and a base that falls toward the sample read reversed
+    // (`recording::mended`) before the contact and the floor are looked for; the glitches
+    // are left out of every χ² with the pinned samples below, and the notes say what was
+    // done.
+    let (
+        mended,
+        crate::recording::Mending {
+            gaps,
+            glitches,
+            reversals,
+        },
+    ) = crate::recording::mended(rec);
+    let rec: &Recording = &mended;
     let terms = opts.nominal_terms;
     if !(1..=MAX_NOMINAL_TERMS).contains(&terms) {
         return Err(DiagnoseError::NominalTerms(terms));

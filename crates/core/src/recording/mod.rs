@@ -109,6 +109,44 @@ pub struct Recording {
     pub warnings: Vec<String>,
 }
 
+/// What [`mended`] did to a recording before a fit reads it, each for a note.
+#[derive(Debug, Clone, Default)]
+pub struct Mending {
+    /// Missing samples of the optional channels, filled or the channel removed.
+    pub gaps: gaps::ChannelGaps,
+    /// Single-sample glitches of the deflection, each replaced by its neighbours' mean.
+    pub glitches: Vec<glitch::Glitch>,
+    /// Base channels read with their sign reversed.
+    pub reversals: Vec<orient::Reversal>,
+}
+
+/// `rec` as the offline fit and the diagnosis both read it: the optional channels' gaps
+/// filled ([`gaps::with_gaps_filled`]), the deflection's glitches mended from their
+/// neighbours ([`glitch::with_glitches_mended`]), then a base that falls toward the sample
+/// read reversed ([`orient::toward_sample`]); borrowed where none of them changed
+/// anything.
+pub fn mended(rec: &Recording) -> (std::borrow::Cow<'_, Recording>, Mending) {
+    let (filled, gaps) = gaps::with_gaps_filled(rec);
+    let (glitch_free, glitches) = glitch::with_glitches_mended(&filled);
+    let (oriented, reversals) = orient::toward_sample(&glitch_free);
+    let untouched = matches!(filled, std::borrow::Cow::Borrowed(_))
+        && matches!(glitch_free, std::borrow::Cow::Borrowed(_))
+        && matches!(oriented, std::borrow::Cow::Borrowed(_));
+    let out = if untouched {
+        std::borrow::Cow::Borrowed(rec)
+    } else {
+        std::borrow::Cow::Owned(oriented.into_owned())
+    };
+    (
+        out,
+        Mending {
+            gaps,
+            glitches,
+            reversals,
+        },
+    )
+}
+
 /// The most a deflection signal reaches, V: photodiode electronics and their converters
 /// span ±10 V, some ±15 V. Past that, a column is in another unit.
 const PHOTODIODE_LIMIT_V: f64 = 20.0;
