@@ -232,6 +232,15 @@ fn fit_json_documented_keys_and_truth() {
     ]);
     let v = json_of(&out);
     let n = check_stable_keys(&v);
+    // The twin's truth columns, which the format does not know, one warning each.
+    let warned = v["reader_warnings"].as_array().expect("reader_warnings[]");
+    assert_eq!(warned.len(), 2, "{warned:?}");
+    assert!(
+        warned
+            .iter()
+            .all(|w| w.as_str().unwrap().contains("`true_")),
+        "{warned:?}"
+    );
     let j0 = finite(&v, "prony.j0_per_pa");
     let t = truth();
     let rel = (j0 - t.j0_per_pa) / t.j0_per_pa;
@@ -273,9 +282,21 @@ fn deflection_only_diagnose_json_draws_detection_limits() {
         rec.reference_deflection_v.take().is_some(),
         "the twin's recording has a reference column"
     );
+    // A column the format does not know: read, ignored, and its warning in the document.
+    rec.extra_columns
+        .push(("stage_temp_c".to_owned(), vec![21.5; rec.len()]));
     let csv = dir.join("deflection-only.csv");
     write_atomic(&csv, &csv.with_extension("toml"), &rec).unwrap();
     let v = json_of(&viscoprobe(&["diagnose", csv.to_str().unwrap(), "--json"]));
+    let warned = v["reader_warnings"].as_array().expect("reader_warnings[]");
+    assert_eq!(warned.len(), rec.extra_columns.len(), "{warned:?}");
+    for (name, _) in &rec.extra_columns {
+        let once = warned
+            .iter()
+            .filter(|w| w.as_str().unwrap().contains(&format!("`{name}`")))
+            .count();
+        assert_eq!(once, 1, "{name}: {warned:?}");
+    }
     let limits: Vec<(&str, &serde_json::Value)> = v["effects"]
         .as_array()
         .expect("effects[]")

@@ -217,7 +217,11 @@ pub fn run(args: DiagnoseArgs) -> anyhow::Result<()> {
     }
     let file = args.recording.display().to_string();
     if args.json {
-        return print_json(&diagnosis_json(&file, &d, seconds));
+        // What the reader ignored or warned of (unit slips, ignored columns) goes to stderr
+        // too; in the document it stays beside the diagnosis it may explain.
+        let mut v = diagnosis_json(&file, &d, seconds);
+        v["reader_warnings"] = serde_json::json!(rec.warnings);
+        return print_json(&v);
     }
     print_report(&file, &d, seconds);
     Ok(())

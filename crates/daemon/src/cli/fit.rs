@@ -170,6 +170,7 @@ pub fn run_fit(args: FitArgs) -> anyhow::Result<()> {
         },
         "notes": fit.notes,
         "warnings": est.diagnostics.warnings,
+        "reader_warnings": rec.warnings,
     });
     let plots = match &args.plot {
         Some(dir) => write_plots(dir, &fit)?,
