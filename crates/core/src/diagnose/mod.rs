@@ -5187,17 +5187,9 @@ mod tests {
     /// down; a spike of noise as deep is not one, nor is a lever that never dips.
     #[test]
     fn a_snap_in_is_where_the_lever_is_pulled_down_and_stays() {
-        use rand::SeedableRng;
-        use rand_distr::{Distribution, StandardNormal};
-        let mut rng = rand::rngs::StdRng::seed_from_u64(7);
         let sigma = 1e-3;
         let (snap, contact) = (2000, 2400);
-        let free: Vec<f64> = (0..3000)
-            .map(|_| {
-                let z: f64 = StandardNormal.sample(&mut rng);
-                sigma * z
-            })
-            .collect();
+        let free = super::noise::tests::white_and_pink(3000, sigma, 0.0, 7);
         // Pulled 8 σ down at the snap, back to the free level 200 samples later, pushed up
         // from the contact on.
         let lever = |k: usize| match k {
@@ -5219,16 +5211,12 @@ mod tests {
     /// free lever, a single spike and a shallower pull do not.
     #[test]
     fn a_gentle_pull_ahead_of_contact_ends_the_free_lever() {
-        use rand::SeedableRng;
-        use rand_distr::{Distribution, StandardNormal};
-        let mut rng = rand::rngs::StdRng::seed_from_u64(11);
         let sigma = 1e-3;
         let (pull, contact) = (1630, 1770);
-        let free: Vec<f64> = (0..3000)
-            .map(|_| {
-                let z: f64 = StandardNormal.sample(&mut rng);
-                (sigma * z).clamp(-2.5 * sigma, 2.5 * sigma)
-            })
+        // Clipped at 2.5 σ: no sample of the 3 σ pull reaches the snap-in's 6 σ.
+        let free: Vec<f64> = super::noise::tests::white_and_pink(3000, sigma, 0.0, 11)
+            .into_iter()
+            .map(|v| v.clamp(-2.5 * sigma, 2.5 * sigma))
             .collect();
         let pulled_by = |depth: f64| -> Vec<f64> {
             let lever = |k: usize| match k {

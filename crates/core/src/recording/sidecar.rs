@@ -520,61 +520,51 @@ fn parse(text: &str, warnings: &mut Vec<String>) -> Result<Sidecar, RecordingErr
     Ok(sidecar)
 }
 
-/// The calibration values a person types by hand, the range AFM work keeps each in, and
-/// the unit slip a value outside most likely is. A value outside is valid and kept; the
-/// warning is there because a sensitivity typed in µm/V reads as 1000 times too small,
-/// and everything downstream runs on without complaint: a fit of a corpus record whose
-/// sensitivity was typed 0.05 (for 51.7 nm/V) gave a modulus of 0.065 kPa against 150 kPa,
-/// and its note read a detector noise of 0.0001 nm as if that were possible (2026-11-30).
-const PLAUSIBLE: [(&str, &str, f64, f64, &str); 4] = [
-    (
-        "cantilever.spring_constant_n_per_m",
-        "N/m",
-        1e-3,
-        500.0,
-        "a value in mN/m is 1000 times one in N/m",
-    ),
-    (
-        "cantilever.deflection_sensitivity_nm_per_v",
-        "nm/V",
-        1.0,
-        1e4,
-        "a value in µm/V is 1/1000 of one in nm/V, one in pm/V 1000 times",
-    ),
-    (
-        "tip.radius_nm",
-        "nm",
-        0.5,
-        1e5,
-        "a value in µm is 1/1000 of one in nm",
-    ),
-    (
-        "piezo.gain_nm_per_v",
-        "nm/V",
-        0.1,
-        1e5,
-        "a value in µm/V is 1/1000 of one in nm/V",
-    ),
-];
-
 impl Sidecar {
-    /// One warning per calibration value outside the range AFM work keeps it in
-    /// ([`PLAUSIBLE`]), naming the key, the range and the likely unit slip.
+    /// One warning per calibration value a person types by hand that lies outside the range
+    /// AFM work keeps it in, naming the key, the range and the unit slip it most likely is.
+    /// A value outside is valid and kept; the warning is there because a sensitivity typed
+    /// in µm/V reads as 1000 times too small, and everything downstream runs on without
+    /// complaint: a fit of a corpus record whose sensitivity was typed 0.05 (for 51.7 nm/V)
+    /// gave a modulus of 0.065 kPa against 150 kPa, and its note read a detector noise of
+    /// 0.0001 nm as if that were possible (2026-11-30).
     fn warn_implausible(&self, warnings: &mut Vec<String>) {
-        let value_of = |key: &str| match key {
-            "cantilever.spring_constant_n_per_m" => Some(self.cantilever.spring_constant_n_per_m),
-            "cantilever.deflection_sensitivity_nm_per_v" => {
-                Some(self.cantilever.deflection_sensitivity_nm_per_v)
-            }
-            "tip.radius_nm" => match self.tip {
-                Tip::Sphere { radius_nm } => Some(radius_nm),
-                Tip::Cone { .. } => None,
-            },
-            "piezo.gain_nm_per_v" => self.piezo.map(|p| p.gain_nm_per_v),
-            _ => None,
+        let radius_nm = match self.tip {
+            Tip::Sphere { radius_nm } => Some(radius_nm),
+            Tip::Cone { .. } => None,
         };
-        for (key, unit, lo, hi, slip) in PLAUSIBLE {
-            let Some(v) = value_of(key) else { continue };
+        let checks = [
+            (
+                "cantilever.spring_constant_n_per_m",
+                Some(self.cantilever.spring_constant_n_per_m),
+                "N/m",
+                (1e-3, 500.0),
+                "a value in mN/m is 1000 times one in N/m",
+            ),
+            (
+                "cantilever.deflection_sensitivity_nm_per_v",
+                Some(self.cantilever.deflection_sensitivity_nm_per_v),
+                "nm/V",
+                (1.0, 1e4),
+                "a value in µm/V is 1/1000 of one in nm/V, one in pm/V 1000 times",
+            ),
+            (
+                "tip.radius_nm",
+                radius_nm,
+                "nm",
+                (0.5, 1e5),
+                "a value in µm is 1/1000 of one in nm",
+            ),
+            (
+                "piezo.gain_nm_per_v",
+                self.piezo.map(|p| p.gain_nm_per_v),
+                "nm/V",
+                (0.1, 1e5),
+                "a value in µm/V is 1/1000 of one in nm/V",
+            ),
+        ];
+        for (key, value, unit, (lo, hi), slip) in checks {
+            let Some(v) = value else { continue };
             if !(lo..=hi).contains(&v.abs()) {
                 warnings.push(format!(
                     "{key} = {v} {unit} is outside the {lo}–{hi} {unit} of AFM work: check its \
