@@ -893,14 +893,12 @@ mod tests {
     /// iteration, the sample or reference, and the level.
     #[test]
     fn a_pinned_deflection_is_refused() {
+        use rand::{Rng, SeedableRng};
         let np = 1000;
-        let mut state = 7u64;
+        let mut rng = rand::rngs::StdRng::seed_from_u64(7);
         let sine: Vec<f64> = (0..2 * np)
             .map(|k| {
-                state = state
-                    .wrapping_mul(6364136223846793005)
-                    .wrapping_add(1442695040888963407);
-                let noise = ((state >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 0.01;
+                let noise = (rng.random::<f64>() - 0.5) * 0.01;
                 1.0 + 0.5 * (k as f64 * 2.0 * std::f64::consts::PI / np as f64).sin() + noise
             })
             .collect();
