@@ -297,6 +297,22 @@ fn deflection_only_diagnose_json_draws_detection_limits() {
             .count();
         assert_eq!(once, 1, "{name}: {warned:?}");
     }
+    // The plain report repeats them beside its channel notes: on stderr they scroll away
+    // under the progress lines.
+    let plain = stdout(&viscoprobe(&["diagnose", csv.to_str().unwrap()]));
+    let reader_lines: Vec<&str> = plain
+        .lines()
+        .filter(|l| l.starts_with("reader: "))
+        .collect();
+    assert_eq!(reader_lines.len(), rec.extra_columns.len(), "{plain}");
+    for (name, _) in &rec.extra_columns {
+        assert!(
+            reader_lines
+                .iter()
+                .any(|l| l.contains(&format!("`{name}`"))),
+            "{name}: {plain}"
+        );
+    }
     let limits: Vec<(&str, &serde_json::Value)> = v["effects"]
         .as_array()
         .expect("effects[]")

@@ -223,7 +223,7 @@ pub fn run(args: DiagnoseArgs) -> anyhow::Result<()> {
         v["reader_warnings"] = serde_json::json!(rec.warnings);
         return print_json(&v);
     }
-    print_report(&file, &d, seconds);
+    print_report(&file, &d, seconds, &rec.warnings);
     Ok(())
 }
 
@@ -270,7 +270,10 @@ fn progress_line(p: &Progress) -> String {
     }
 }
 
-fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
+/// The report in words. `reader_warnings` are the reader's (printed on stderr as the file
+/// was read, minutes of progress ago): repeated beside the channel notes, as a unit slip
+/// they name may be what the diagnosis below is about.
+fn print_report(file: &str, d: &Diagnosis, seconds: f64, reader_warnings: &[String]) {
     println!(
         "{file}: diagnosis in {seconds:.1} s ({} twin simulations: {} nominal, {} screening, {} refits, {} pairs)",
         d.simulations.total(),
@@ -305,6 +308,9 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64) {
     );
     for note in &d.channel_notes {
         println!("channel: {note}");
+    }
+    for w in reader_warnings {
+        println!("reader: {w}");
     }
     if let (Some(sigma), Some(offset)) = (d.reference_sigma_v, d.reference_contact_offset_nm) {
         let contact = if offset == 0.0 {
