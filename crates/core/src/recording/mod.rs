@@ -29,13 +29,16 @@
 //! says where it did, find a deflection pinned at a saturated detector's limit with
 //! [`clip::find_clipped`], mend its single-sample glitches with
 //! [`glitch::with_glitches_mended`], and read a drive that falls toward the sample (a
-//! height) the format's way round with [`orient::toward_sample`].
+//! height) the format's way round with [`orient::toward_sample`]. [`grid::step`] finds a
+//! deflection written on a grid coarser than the noise (an export that kept too few
+//! decimals), which nothing downstream can undo.
 
 pub mod clip;
 mod csv;
 mod error;
 pub mod gaps;
 pub mod glitch;
+pub mod grid;
 pub mod orient;
 mod sidecar;
 
