@@ -2242,6 +2242,13 @@ fn locations(problem: &Problem, e: &[f64], phases: &[Phase]) -> Vec<Location> {
         fs,
         problem.floor_from_hz,
     ));
+    out.extend(locate::narrow_peak(
+        e,
+        &problem.drive,
+        window,
+        fs,
+        problem.floor_from_hz,
+    ));
     out.extend(locate::whiteness(e, &problem.drive, fs));
     out.extend(locate::nonlinear_correlation(e, &problem.drive, fs));
     // A repeated excitation: its whole periods, found in the drive over the excitation phase
@@ -4752,7 +4759,7 @@ mod tests {
     /// A structure no catalog effect makes (a burst at 330 Hz, three floors high at its
     /// peak, over 0.6 s of the excitation) is not forced onto a candidate: nothing is named,
     /// the verdict says a structured residual remains, and the report says where: the
-    /// octave band holding 330 Hz and the excitation. (Without the burst this twin is the
+    /// octave band holding 330 Hz, a peak about it, and the excitation. (Without the burst this twin is the
     /// corpus's clean null of seed 1, whose verdict is `none`.)
     #[test]
     fn a_burst_outside_the_catalog_is_left_unexplained_and_located() {
@@ -4777,6 +4784,17 @@ mod tests {
             .filter(strong)
             .find(|l| l.domain == Domain::Frequency && l.from <= 330.0 && l.to >= 330.0);
         assert!(band.is_some(), "{:#?}", d.locations_before);
+        // The peak search puts it within hertz, where that band is an octave wide.
+        let peak = (d.locations_before.iter())
+            .find(|l| l.domain == Domain::Peak)
+            .unwrap_or_else(|| panic!("{:#?}", d.locations_before));
+        assert!(
+            peak.significant
+                && peak.from <= 330.0
+                && peak.to >= 330.0
+                && peak.to - peak.from < 30.0,
+            "{peak:?}"
+        );
         let excitation = d
             .locations_before
             .iter()
