@@ -15,8 +15,8 @@ use viscoprobe_core::diagnose::bench::{score, CaseOutcome, Score};
 use viscoprobe_core::diagnose::corpus::{concealed_corpus_with, CorpusCase, MATERIAL_TERMS};
 use viscoprobe_core::diagnose::model::{DEFAULT_NOMINAL_TERMS, MAX_NOMINAL_TERMS};
 use viscoprobe_core::diagnose::{
-    diagnose_observed, diagnose_with, BasePosition, DiagnoseOptions, Diagnosis, FitSummary, Param,
-    Progress, Weighting,
+    diagnose_observed, diagnose_with, locate::Domain, BasePosition, DiagnoseOptions, Diagnosis,
+    FitSummary, Param, Progress, Weighting,
 };
 use viscoprobe_core::prony::{PronySeries, PronyTerm};
 
@@ -351,6 +351,16 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64, reader_warnings: &[Stri
         }
         viscoprobe_core::diagnose::Verdict::Unexplained => {
             println!("verdict: UNEXPLAINED — a structured residual remains that no catalog effect explains (see where below)");
+            // A narrow peak off the lines is the one place that points at physics the twin
+            // cannot hold: motion the drive did not cause.
+            if let Some(p) =
+                (d.locations_before.iter()).find(|l| l.domain == Domain::Peak && l.significant)
+            {
+                println!(
+                    "  the residual's {} ({:.0}–{:.0} Hz, {:.1} times the floor) lies off every excited and mains line: so shows a mode rung by something other than the drive (the room, the floor, a pump), or a tone the drive does not make, which a twin driven by the recorded drive cannot hold",
+                    p.name, p.from, p.to, p.power_ratio
+                );
+            }
         }
     }
     for e in &sig {
