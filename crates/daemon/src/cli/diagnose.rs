@@ -871,6 +871,22 @@ fn residual_spectrum(path: &Path, d: &Diagnosis) -> anyhow::Result<()> {
         .map_err(err)?
         .label("noise floor")
         .legend(legend_line(BLACK));
+    // The narrow peak the nominal residual has off the lines, shaded where it was found.
+    if let Some(p) = (d.locations_before.iter())
+        .find(|l| l.domain == Domain::Peak && l.significant && l.from > f_lo)
+    {
+        let shade = RGBColor(230, 160, 0);
+        chart
+            .draw_series(std::iter::once(Rectangle::new(
+                [(p.from, 0.1), (p.to.max(p.from * 1.01), hi)],
+                shade.mix(0.25).filled(),
+            )))
+            .map_err(err)?
+            .label(format!("{} (z {:.1})", p.name, p.z))
+            .legend(move |(x, y)| {
+                Rectangle::new([(x, y - 5), (x + 20, y + 5)], shade.mix(0.25).filled())
+            });
+    }
     chart
         .draw_series(LineSeries::new(b, RED))
         .map_err(err)?
