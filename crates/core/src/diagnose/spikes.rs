@@ -105,7 +105,7 @@ pub fn describe(spikes: &[usize], r: &[f64], sigma_v: f64, fs_hz: f64) -> String
     let first = spikes.first().copied().unwrap_or(0);
     let largest = spikes.iter().fold(0.0f64, |m, &k| m.max(r[k].abs()));
     format!(
-        "deflection_v: {} sample{} of spikes, runs of one to {SPIKE_RUN} (the first at t = {:.4} s, \
+        "deflection_v: {} sample{} of spikes, runs of 1 to {SPIKE_RUN} samples (the first at t = {:.4} s, \
          CSV row {}; up to {:.1} σ of the floor off the nominal twin, where the residual about \
          them is at the floor): no physics moves the lever so for a sample and puts it back; \
          left out of every fit and χ²",
@@ -139,7 +139,8 @@ mod tests {
         for v in &mut r[3000..3200] {
             *v += 12.0 * sigma;
         }
-        // A misfit of high crest factor: peaks of 10 σ on a residual of 2.4 σ RMS.
+        // A misfit of high crest factor: a line of 2 σ amplitude five samples a period
+        // (1.7 σ RMS with the floor) and single samples of about 10 σ on it.
         for (j, v) in r[3500..3600].iter_mut().enumerate() {
             let phase = j as f64 * 2.0 * std::f64::consts::PI / 5.0;
             *v += sigma * (2.0 * phase.sin() + if j % 37 == 0 { 8.0 } else { 0.0 });
