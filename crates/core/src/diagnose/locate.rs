@@ -389,9 +389,37 @@ pub fn in_frequency(
     fs_hz: f64,
     f_min_hz: f64,
 ) -> Vec<Location> {
+    spectra(e, drive, window, fs_hz).map_or_else(Vec::new, |s| bands_of(&s, fs_hz, f_min_hz))
+}
+
+/// [`in_frequency`]'s locations and [`narrow_peak`]'s, from one pair of periodograms of the
+/// window: what the report's locations read.
+pub fn in_frequency_and_peak(
+    e: &[f64],
+    drive: &[f64],
+    window: (usize, usize),
+    fs_hz: f64,
+    f_min_hz: f64,
+) -> Vec<Location> {
     let Some(s) = spectra(e, drive, window, fs_hz) else {
         return vec![];
     };
+    let mut out = bands_of(&s, fs_hz, f_min_hz);
+    out.extend(peak_of(&s, f_min_hz));
+    out
+}
+
+/// The bins of the mains lines, 50 and 60 Hz and two harmonics of each, in a spectrum of
+/// `df` Hz bins (past Nyquist too: the caller clamps).
+fn mains_bins(df: f64) -> impl Iterator<Item = usize> {
+    [50.0, 60.0]
+        .into_iter()
+        .flat_map(|f0| (1..=3).map(move |h| f0 * h as f64))
+        .map(move |f| (f / df).round() as usize)
+}
+
+/// [`in_frequency`] on the periodograms `s`.
+fn bands_of(s: &Spectra, fs_hz: f64, f_min_hz: f64) -> Vec<Location> {
     let (pe, df) = (&s.pe, s.df);
     let n_bins = pe.len();
     let mut group = vec![2u8; n_bins]; // 0 excited, 1 mains, 2 other, 3 below the floor
@@ -402,14 +430,11 @@ pub fn in_frequency(
             *g = 0;
         }
     }
-    for f0 in [50.0, 60.0] {
-        for h in 1..=3 {
-            let k = (f0 * h as f64 / df).round() as usize;
-            let (k0, k1) = (k.saturating_sub(1).max(1), (k + 2).min(n_bins));
-            for g in group.iter_mut().take(k1).skip(k0) {
-                if *g == 2 {
-                    *g = 1;
-                }
+    for k in mains_bins(df) {
+        let (k0, k1) = (k.saturating_sub(1).max(1), (k + 2).min(n_bins));
+        for g in group.iter_mut().take(k1).skip(k0) {
+            if *g == 2 {
+                *g = 1;
             }
         }
     }
@@ -500,7 +525,11 @@ pub fn narrow_peak(
     fs_hz: f64,
     f_min_hz: f64,
 ) -> Option<Location> {
-    let s = spectra(e, drive, window, fs_hz)?;
+    peak_of(&spectra(e, drive, window, fs_hz)?, f_min_hz)
+}
+
+/// [`narrow_peak`] on the periodograms `s`.
+fn peak_of(s: &Spectra, f_min_hz: f64) -> Option<Location> {
     let (pe, df) = (&s.pe, s.df);
     let n_bins = pe.len();
     let mut searched = vec![true; n_bins];
@@ -517,10 +546,8 @@ pub fn narrow_peak(
             guard(k);
         }
     }
-    for f0 in [50.0, 60.0] {
-        for h in 1..=3 {
-            guard((f0 * h as f64 / df).round() as usize);
-        }
+    for k in mains_bins(df) {
+        guard(k);
     }
     for (k, v) in searched.iter_mut().enumerate() {
         if (k as f64) * df < f_min_hz {
@@ -583,17 +610,18 @@ fn ln_gamma_tail(c: usize, x: f64) -> f64 {
     if c == 0 || x <= 0.0 {
         return 0.0;
     }
-    let mut ln_fact = 0.0;
-    let terms: Vec<f64> = (0..c)
-        .map(|j| {
-            if j > 0 {
-                ln_fact += (j as f64).ln();
-            }
-            j as f64 * x.ln() - ln_fact - x
-        })
-        .collect();
-    let top = terms.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-    (top + terms.iter().map(|t| (t - top).exp()).sum::<f64>().ln()).min(0.0)
+    // Summed as logarithms term by term (`ln(eᵃ + eᵇ)` about the larger), with `ln j!`
+    // carried along: no term is ever taken out of logarithms whole.
+    let (mut ln_fact, mut acc) = (0.0, f64::NEG_INFINITY);
+    for j in 0..c {
+        if j > 0 {
+            ln_fact += (j as f64).ln();
+        }
+        let t = j as f64 * x.ln() - ln_fact - x;
+        let (hi, lo) = if acc > t { (acc, t) } else { (t, acc) };
+        acc = hi + (lo - hi).exp().ln_1p();
+    }
+    acc.min(0.0)
 }
 
 /// The one-sided normal deviate with tail `e^{ln_p}`: `√(L − ln L − ln 2π)`, `L = −2 ln p`,

@@ -2260,14 +2260,7 @@ fn locations(problem: &Problem, e: &[f64], phases: &[Phase]) -> Vec<Location> {
         .iter()
         .find(|p| p.name == "excitation")
         .map_or((0, e.len()), |p| (p.start, p.end));
-    out.extend(locate::in_frequency(
-        e,
-        &problem.drive,
-        window,
-        fs,
-        problem.floor_from_hz,
-    ));
-    out.extend(locate::narrow_peak(
+    out.extend(locate::in_frequency_and_peak(
         e,
         &problem.drive,
         window,
