@@ -4492,10 +4492,13 @@ mod tests {
             .iter()
             .find(|n| n.contains("written on a grid of 10.0000 mV"))
             .unwrap_or_else(|| panic!("{:?}", d.channel_notes));
-        let times: f64 = (note.split("steps), ").nth(1))
-            .and_then(|r| r.split(' ').next()?.parse().ok())
-            .unwrap_or_else(|| panic!("{note}"));
-        assert!((2.0..5.0).contains(&times), "{note}");
+        // The step against the floor this diagnosis measured, as the note gives it.
+        let times = 0.01 / d.noise.sigma_v;
+        assert!((2.0..5.0).contains(&times), "{times}");
+        assert!(
+            note.contains(&format!("{times:.1} times the noise floor")),
+            "{note}"
+        );
     }
 
     /// Six single-sample spikes of 16 σ in the excitation, where a fast multisine keeps
