@@ -4579,13 +4579,21 @@ mod tests {
         for (i, k) in (5000..=10_000).step_by(1000).enumerate() {
             rec.deflection_v[k] += if i % 2 == 0 { 16.0 } else { -16.0 } * sigma;
         }
+        // And a run of three on the approach, whose ramp, computed in floating point, has
+        // second differences of its rounding alone (once taken for the drive turning).
+        let approach = 3000;
+        assert!((approach - 3..approach + 3)
+            .any(|j| drive_v[j - 1] - 2.0 * drive_v[j] + drive_v[j + 1] != 0.0));
+        for v in &mut rec.deflection_v[approach..approach + 3] {
+            *v += 16.0 * sigma;
+        }
         assert!(crate::recording::glitch::find_glitches(&rec.deflection_v).is_empty());
         let d = diagnose(&rec, &corpus_options()).unwrap();
         assert_eq!(d.verdict, Verdict::None, "{:?}", d.effects[0]);
         assert_eq!(d.channel_notes.len(), 1, "{:?}", d.channel_notes);
         assert!(
-            d.channel_notes[0].contains("6 samples of spikes")
-                && d.channel_notes[0].contains("t = 1.2500 s"),
+            d.channel_notes[0].contains("9 samples of spikes")
+                && d.channel_notes[0].contains("t = 0.7500 s"),
             "{:?}",
             d.channel_notes
         );
