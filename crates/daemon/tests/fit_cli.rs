@@ -621,6 +621,11 @@ fn real_jpk_diagnose_json_keeps_the_documented_keys() {
             .expect("every effect says whether it was refused");
         assert!(refused.is_null() || refused.is_string(), "{e}");
         assert!(e["at_nothing"].is_boolean(), "{e}");
+        // Adhesion is the strongest single effect and leads the pair: nothing is outdone.
+        let outdone = e
+            .get("outdone_by")
+            .expect("every effect says whether a pair outdid it");
+        assert!(outdone.is_null(), "{e}");
         for (name, p) in e["params"].as_object().expect("params") {
             finite(p, "value");
             assert!(p["unit"].is_string(), "{name}: {p}");

@@ -22,6 +22,9 @@ pub struct CaseOutcome {
     /// What the chosen model leaves on the held-out samples is at the noise floor
     /// ([`super::AgainstFloor`]).
     pub after_at_floor: bool,
+    /// The strongest single effect, where a pair of runners-up was kept over every pair it
+    /// led ([`super::EffectReport::outdone_by`]).
+    pub outdone: Option<String>,
     pub seconds: f64,
 }
 
@@ -39,6 +42,11 @@ impl CaseOutcome {
             before_chi2: d.before.held_out_chi2_per_sample,
             after_chi2: d.after.held_out_chi2_per_sample,
             after_at_floor: d.against_floor.after_at_floor,
+            outdone: d
+                .effects
+                .iter()
+                .find(|e| e.outdone_by.is_some())
+                .map(|e| e.id.to_string()),
             seconds,
         }
     }

@@ -176,6 +176,11 @@ pub struct EffectReport {
     /// and switched off it did better. `params` then hold the sizes that switch it off, and
     /// `evidence` what that model gives.
     pub at_nothing: bool,
+    /// The pair kept over every pair this candidate led, where it was the strongest single
+    /// effect: it explains more alone than the pair's first, yet the pair of runners-up fits
+    /// the held-out samples better (a low mode that took up part of a delay and of a
+    /// retardation time). `None` otherwise.
+    pub outdone_by: Option<[&'static str; 2]>,
     /// Why the candidate was not weighed at all (the piezo's own effects behind a height
     /// sensor, or a screening none of whose starts gave a physical twin): its `evidence` and
     /// `train_drop` are then 0 and say nothing. `None` for every candidate screened.
@@ -1942,6 +1947,7 @@ pub fn diagnose_observed(
             reference_evidence: j.reference.map(|s| s.1),
             refused: j.refused,
             at_nothing: at_nothing.is_some(),
+            outdone_by: None,
             not_evaluated: None,
             detection_limit: limit_of(*e),
             description: e.describe(),
@@ -1963,6 +1969,7 @@ pub fn diagnose_observed(
         reference_evidence: None,
         refused: None,
         at_nothing: false,
+        outdone_by: None,
         not_evaluated,
         detection_limit: limit_of(e),
         description: e.describe(),
@@ -2108,6 +2115,9 @@ pub fn diagnose_observed(
                 }
                 if lead != a {
                     chosen_effects = vec![lead];
+                    if let Some(r) = reports.iter_mut().find(|r| r.id == a.id()) {
+                        r.outdone_by = Some([lead.id(), b.id()]);
+                    }
                 }
                 chosen_effects.push(b);
                 chosen = Some(fp);

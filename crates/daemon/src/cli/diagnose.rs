@@ -16,7 +16,7 @@ use viscoprobe_core::diagnose::corpus::{concealed_corpus_with, CorpusCase, MATER
 use viscoprobe_core::diagnose::model::{DEFAULT_NOMINAL_TERMS, MAX_NOMINAL_TERMS};
 use viscoprobe_core::diagnose::{
     diagnose_observed, diagnose_with, locate::Domain, BasePosition, DiagnoseOptions, Diagnosis,
-    FitSummary, Param, Progress, Weighting,
+    EffectReport, FitSummary, Param, Progress, Weighting,
 };
 use viscoprobe_core::prony::{PronySeries, PronyTerm};
 
@@ -100,6 +100,7 @@ pub fn diagnosis_json(file: &str, d: &Diagnosis, seconds: f64) -> Value {
             "reference_evidence": e.reference_evidence,
             "refused": e.refused,
             "at_nothing": e.at_nothing,
+            "outdone_by": e.outdone_by,
             "not_evaluated": e.not_evaluated,
             "detection_limit": e.detection_limit.as_ref().map(|l| json!({
                 "param": {"name": l.param, "unit": l.unit, "value": l.value},
@@ -566,11 +567,23 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64, reader_warnings: &[Stri
                     (None, true, true) => {
                         " (every refit ended above the nominal twin: weighed switched off)".into()
                     }
-                    (None, true, false) => String::new(),
+                    (None, true, false) => outdone_by_pair(e),
                     (None, false, _) => " (screened only)".into(),
                 }
             );
         }
+    }
+}
+
+/// Why the strongest single effect is not kept where a pair of runners-up is
+/// ([`EffectReport::outdone_by`]); empty otherwise.
+fn outdone_by_pair(e: &EffectReport) -> String {
+    match e.outdone_by {
+        Some([first, second]) => format!(
+            " (the strongest alone, but {first} + {second} fit the held-out samples better \
+             than any pair it led)"
+        ),
+        None => String::new(),
     }
 }
 
