@@ -2087,7 +2087,7 @@ pub fn diagnose_observed(
             });
             // The winning pair that explains the held-out samples best, measured against the
             // best single effect; its second effect's evidence is what it adds to its first.
-            let mut best_pair: Option<(Effect, Effect, Fitted, Judgement, f64)> = None;
+            let mut best_pair: Option<(Effect, &Fitted, Effect, Fitted, Judgement, f64)> = None;
             for (lead, first, b, fp) in pairs.into_iter().flatten() {
                 let over_best = judge(&fa, &fp);
                 let (wins, j) = if lead == a {
@@ -2096,11 +2096,47 @@ pub fn diagnose_observed(
                     let own = judge(first, &fp);
                     (own.wins && over_best.wins, own)
                 };
-                if wins && best_pair.as_ref().is_none_or(|p| over_best.held_drop > p.4) {
-                    best_pair = Some((lead, b, fp, j, over_best.held_drop));
+                if wins && best_pair.as_ref().is_none_or(|p| over_best.held_drop > p.5) {
+                    best_pair = Some((lead, first, b, fp, j, over_best.held_drop));
                 }
             }
-            if let Some((lead, b, mut fp, j, _)) = best_pair {
+            // The pair's first alone, refitted from where the pair ended: the pair may have
+            // found a better basin of the nominal parameters, which the second effect would
+            // otherwise take credit for. On the concealed corpus a hysteresis masked by a
+            // lossy material (20 and 2.1 ms) was named with a flat 294 Hz "mode" (peak gain
+            // 0.995, Q 0.31, its frequency's interval 10 Hz–8.8 kHz) at 1053 held-out units:
+            // the pair had found the material's true times. The second is kept only if it
+            // wins over this refit too, and its evidence is measured against it.
+            let mut alone_better: Option<Fitted> = None;
+            if let Some((lead, first, b, fp, j, _)) = best_pair.take() {
+                let start = combine(&first.spec, &fp, &fp);
+                let again = fit_model(&problem, &first.spec, &[start], refit_opts, fan)
+                    .filter(|f| f.eval.chi2_train < first.eval.chi2_train);
+                match again {
+                    Some(f1) => {
+                        let j1 = judge(&f1, &fp);
+                        if j1.wins {
+                            best_pair = Some((lead, first, b, fp, j1, 0.0));
+                        } else if lead == a && bic(&f1) < bic(&fa) {
+                            alone_better = Some(f1);
+                        }
+                    }
+                    None => best_pair = Some((lead, first, b, fp, j, 0.0)),
+                }
+            }
+            if let Some(f1) = alone_better {
+                // The first alone stands, as the better fit of its own model.
+                let j1 = judge(&nom, &f1);
+                if let Some(r) = reports.iter_mut().find(|r| r.id == a.id()) {
+                    r.evidence = j1.held_drop;
+                    r.train_drop = j1.train_drop;
+                    r.held_out_nrmse = Some(held_nrmse(&problem, &f1));
+                    r.sensor_evidence = j1.sensor.map(|s| s.1);
+                    r.reference_evidence = j1.reference.map(|s| s.1);
+                }
+                chosen = Some(f1);
+            }
+            if let Some((lead, _, b, mut fp, j, _)) = best_pair {
                 scan_step_parameters(&problem, &mut fp);
                 // The second effect's evidence is what it adds to the first.
                 if let Some(r) = reports.iter_mut().find(|r| r.id == b.id()) {
