@@ -1288,12 +1288,7 @@ pub fn diagnose_observed(
     let spike_note = (!spiked.is_empty())
         .then(|| spikes::describe(&spiked, &nom.eval.residual_v, noise.sigma_v, fs));
     if !spiked.is_empty() {
-        let reach = clip::reach(&spiked, noise.ar.len().saturating_sub(1), n);
-        problem.train = clip::leave_out(&problem.train, &reach);
-        problem.held = clip::leave_out(&problem.held, &reach);
-        problem.left_out.extend(reach);
-        problem.left_out.sort_unstable();
-        problem.left_out.dedup();
+        problem.leave_out(&clip::reach(&spiked, noise.ar.len().saturating_sub(1), n));
         nom = fit_nominal(&problem)?;
     }
     // The floor's noise model weights the residual only while the misfit is of the floor's

@@ -1652,6 +1652,20 @@ impl Problem {
         cols
     }
 
+    /// Leaves `samples` (ascending, the whitening's reach included: `recording::clip::reach`)
+    /// out of every sum from now on: out of the train and held-out sets, into `left_out`. The
+    /// cached fixed columns go with them, as their norms and normal equations are sums over
+    /// the train samples; kept, they would pair each train sample past the first left out
+    /// with another's column value.
+    pub fn leave_out(&mut self, samples: &[usize]) {
+        self.train = crate::recording::clip::leave_out(&self.train, samples);
+        self.held = crate::recording::clip::leave_out(&self.held, samples);
+        self.left_out.extend_from_slice(samples);
+        self.left_out.sort_unstable();
+        self.left_out.dedup();
+        self.fixed_columns = Default::default();
+    }
+
     /// Drops the whitening: every residual sample weighs the same, in units of `sigma_v`.
     /// The cached whitened columns go with it.
     pub fn weigh_equally(&mut self, sigma_v: f64) {
