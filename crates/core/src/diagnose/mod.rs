@@ -1614,37 +1614,34 @@ pub fn diagnose_observed(
             });
             Some((*e, best, plain))
         };
-        for (e, best, plain) in fan::map(fan, to_refit.len(), |j| refit_one(to_refit[j]))
-            .into_iter()
-            .flatten()
-        {
-            singles.push((e, best));
-            plain_forms.extend(plain.map(|p| (e, p)));
-        }
+        let refit_all = |indices: &[usize]| -> Vec<_> {
+            fan::map(fan, indices.len(), |j| refit_one(indices[j]))
+                .into_iter()
+                .flatten()
+                .collect()
+        };
+        let mut refitted = refit_all(&to_refit);
         // Where no refit comes near the floor, the next candidates whose screening beat
         // their price are refitted as well: the screening is linearised about a nominal fit
         // far from the truth, and its order there is loose. On the concealed corpus an
         // adhesion beside a drag screened a detector's nonlinearity first (its refit then
         // gained 0.6 % of the nominal χ²) and the drag fifth, at 7998 units over a price of
         // 29, and the drag was never refitted to join the adhesion in a pair.
-        let best_train = singles
-            .iter()
-            .map(|(_, f)| f.eval.chi2_train)
+        let best_train = (refitted.iter())
+            .map(|(_, f, _)| f.eval.chi2_train)
             .fold(f64::INFINITY, f64::min);
         // In the first round only: a second one refits few candidates by design.
-        if again.is_none() && best_train > n_tr + 5.0 * (2.0 * n_tr).sqrt() {
+        if again.is_none() && well_above_floor(best_train, n_tr) {
             let more: Vec<usize> = (0..screened.len())
                 .filter(|i| !to_refit.contains(i))
                 .filter(|&i| screened[i].1 > penalty_of(screened[i].0))
                 .take(EXTRA_REFITS)
                 .collect();
-            for (e, best, plain) in fan::map(fan, more.len(), |j| refit_one(more[j]))
-                .into_iter()
-                .flatten()
-            {
-                singles.push((e, best));
-                plain_forms.extend(plain.map(|p| (e, p)));
-            }
+            refitted.extend(refit_all(&more));
+        }
+        for (e, best, plain) in refitted {
+            singles.push((e, best));
+            plain_forms.extend(plain.map(|p| (e, p)));
         }
         Examined {
             white_nom,
@@ -1996,7 +1993,7 @@ pub fn diagnose_observed(
     // a small local effect beside a large global one (an adhesive pull-off beside a drift,
     // from an independent simulator): its few hundred χ² units hide in the spread of a
     // χ² over thousands of samples, yet it stood out against the nominal fit by itself.
-    let leaves_structure = |f: &Fitted| f.eval.chi2_held > n_ho + 5.0 * (2.0 * n_ho).sqrt();
+    let leaves_structure = |f: &Fitted| well_above_floor(f.eval.chi2_held, n_ho);
     if opts.pairs {
         if let Some((a, fa, _)) = sig_singles.first().cloned() {
             // Each partner in its best form and, where that is another, its plain one.
@@ -2059,8 +2056,15 @@ pub fn diagnose_observed(
                 }
                 fp
             };
+            // Each pair fitted, with its judgement against the best single effect.
+            let over_best = |(lead, first, b, fp): (Effect, _, Effect, Fitted)| {
+                let j = judge(&fa, &fp);
+                (lead, first, b, fp, j)
+            };
             let fits = fan::map(fan, jobs.len(), |j| fit_pair(&jobs[j]));
-            let mut pairs = fitted_pairs(&jobs, fits);
+            let mut pairs: Vec<_> = (fitted_pairs(&jobs, fits).into_iter())
+                .map(over_best)
+                .collect();
             // The runners-up lead pairs of their own where no winning pair the best leads
             // reaches the floor: the best single effect may be a look-alike that took up
             // part of each of two true effects. On the concealed corpus a delay beside a
@@ -2073,9 +2077,8 @@ pub fn diagnose_observed(
             // whenever the best leaves structure, the pair stage of the corpus's adhesion
             // beside a blunt cone took 13.3 s of its 22.3 s alone, its pair led by the
             // adhesion already at the floor; now the whole diagnosis takes 13.5 s).
-            let led_to_floor = pairs
-                .iter()
-                .any(|(_, _, _, fp)| !leaves_structure(fp) && judge(&fa, fp).wins);
+            let led_to_floor =
+                (pairs.iter()).any(|(_, _, _, fp, o)| o.wins && !leaves_structure(fp));
             if wide && !led_to_floor {
                 let mut rival_jobs: Vec<PairJob> = vec![];
                 let runners_up: Vec<&(Effect, Fitted, f64)> =
@@ -2088,23 +2091,28 @@ pub fn diagnose_observed(
                     }
                 }
                 let fits = fan::map(fan, rival_jobs.len(), |j| fit_pair(&rival_jobs[j]));
-                pairs.extend(fitted_pairs(&rival_jobs, fits));
+                pairs.extend(fitted_pairs(&rival_jobs, fits).into_iter().map(over_best));
             }
             // The winning pair that explains the held-out samples best, measured against the
-            // best single effect; its second effect's evidence is what it adds to its first.
-            let mut best_pair: Option<(Effect, &Fitted, Effect, Fitted, Judgement, f64)> = None;
-            for (lead, first, b, fp) in pairs {
-                let over_best = judge(&fa, &fp);
-                let (wins, j) = if lead == a {
-                    (over_best.wins, over_best)
-                } else {
-                    let own = judge(first, &fp);
-                    (own.wins && over_best.wins, own)
-                };
-                if wins && best_pair.as_ref().is_none_or(|p| over_best.held_drop > p.5) {
-                    best_pair = Some((lead, first, b, fp, j, over_best.held_drop));
-                }
-            }
+            // best single effect (the first of equals); its second effect's evidence is what
+            // it adds to its first.
+            let best_pair = (pairs.into_iter())
+                .filter_map(|(lead, first, b, fp, over_best)| {
+                    let j = if lead == a {
+                        over_best
+                    } else {
+                        judge(first, &fp)
+                    };
+                    (j.wins && over_best.wins).then_some((
+                        over_best.held_drop,
+                        lead,
+                        first,
+                        b,
+                        fp,
+                        j,
+                    ))
+                })
+                .reduce(|best, p| if p.0 > best.0 { p } else { best });
             // The pair's first alone, refitted from where the pair ended: the pair may have
             // found a better basin of the nominal parameters, which the second effect would
             // otherwise take credit for. On the concealed corpus a hysteresis masked by a
@@ -2112,36 +2120,33 @@ pub fn diagnose_observed(
             // 0.995, Q 0.31, its frequency's interval 10 Hz–8.8 kHz) at 1053 held-out units:
             // the pair had found the material's true times. The second is kept only if it
             // wins over this refit too, and its evidence is measured against it.
-            let mut alone_better: Option<Fitted> = None;
-            if let Some((lead, first, b, fp, j, _)) = best_pair.take() {
+            let mut kept = None;
+            if let Some((_, lead, first, b, fp, j)) = best_pair {
                 let start = combine(&first.spec, &fp, &fp);
-                let again = fit_model(&problem, &first.spec, &[start], refit_opts, fan)
-                    .filter(|f| f.eval.chi2_train < first.eval.chi2_train);
-                match again {
+                match fit_model(&problem, &first.spec, &[start], refit_opts, fan)
+                    .filter(|f| f.eval.chi2_train < first.eval.chi2_train)
+                {
+                    None => kept = Some((lead, b, fp, j)),
                     Some(f1) => {
                         let j1 = judge(&f1, &fp);
                         if j1.wins {
-                            best_pair = Some((lead, first, b, fp, j1, 0.0));
+                            kept = Some((lead, b, fp, j1));
                         } else if lead == a && bic(&f1) < bic(&fa) {
-                            alone_better = Some(f1);
+                            // The first alone stands, as the better fit of its own model.
+                            let j0 = judge(&nom, &f1);
+                            if let Some(r) = reports.iter_mut().find(|r| r.id == a.id()) {
+                                r.evidence = j0.held_drop;
+                                r.train_drop = j0.train_drop;
+                                r.held_out_nrmse = Some(held_nrmse(&problem, &f1));
+                                r.sensor_evidence = j0.sensor.map(|s| s.1);
+                                r.reference_evidence = j0.reference.map(|s| s.1);
+                            }
+                            chosen = Some(f1);
                         }
                     }
-                    None => best_pair = Some((lead, first, b, fp, j, 0.0)),
                 }
             }
-            if let Some(f1) = alone_better {
-                // The first alone stands, as the better fit of its own model.
-                let j1 = judge(&nom, &f1);
-                if let Some(r) = reports.iter_mut().find(|r| r.id == a.id()) {
-                    r.evidence = j1.held_drop;
-                    r.train_drop = j1.train_drop;
-                    r.held_out_nrmse = Some(held_nrmse(&problem, &f1));
-                    r.sensor_evidence = j1.sensor.map(|s| s.1);
-                    r.reference_evidence = j1.reference.map(|s| s.1);
-                }
-                chosen = Some(f1);
-            }
-            if let Some((lead, _, b, mut fp, j, _)) = best_pair {
+            if let Some((lead, b, mut fp, j)) = kept {
                 scan_step_parameters(&problem, &mut fp);
                 // The second effect's evidence is what it adds to the first.
                 if let Some(r) = reports.iter_mut().find(|r| r.id == b.id()) {
@@ -3199,6 +3204,12 @@ fn one_term_fewer(nominal: &ModelSpec, f: &Fitted) -> Vec<Vec<f64>> {
             th
         })
         .collect()
+}
+
+/// Whether a χ² over `n` samples stands 5 σ of its own scatter (√(2n)) above the floor's n:
+/// a model that leaves structure.
+fn well_above_floor(chi2: f64, n: f64) -> bool {
+    chi2 > n + 5.0 * (2.0 * n).sqrt()
 }
 
 /// A pair to fit: its first effect, the fit its nominal part starts from, and the partner
