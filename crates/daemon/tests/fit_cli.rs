@@ -626,6 +626,8 @@ fn real_jpk_diagnose_json_keeps_the_documented_keys() {
             .get("outdone_by")
             .expect("every effect says whether a pair outdid it");
         assert!(outdone.is_null(), "{e}");
+        // No mode rung by the room: the pull-off and the drag leave no narrow peak.
+        assert_eq!(e["rung_by_surroundings"], false, "{e}");
         for (name, p) in e["params"].as_object().expect("params") {
             finite(p, "value");
             assert!(p["unit"].is_string(), "{name}: {p}");

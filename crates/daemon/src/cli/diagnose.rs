@@ -101,6 +101,7 @@ pub fn diagnosis_json(file: &str, d: &Diagnosis, seconds: f64) -> Value {
             "refused": e.refused,
             "at_nothing": e.at_nothing,
             "outdone_by": e.outdone_by,
+            "rung_by_surroundings": e.rung_by_surroundings,
             "not_evaluated": e.not_evaluated,
             "detection_limit": e.detection_limit.as_ref().map(|l| json!({
                 "param": {"name": l.param, "unit": l.unit, "value": l.value},
@@ -373,6 +374,11 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64, reader_warnings: &[Stri
             "    evidence: held-out χ² drops by {:.1}{over} (train by {:.1}; BIC penalty {:.1})",
             e.evidence, e.train_drop, e.bic_penalty
         );
+        if e.rung_by_surroundings {
+            println!(
+                "    rung by the surroundings, not by the drive (the room, the floor, a pump): a mode driven by white forcing while the lever touches the sample, which no twin driven by the recorded drive can follow; modelled by its statistics, and scored by its one-step prediction from the residual's own past (the after fit below is that prediction's)"
+            );
+        }
         if let (Some(s), Some(sigma)) = (e.sensor_evidence, d.sensor_sigma_nm) {
             println!(
                 "    of which the height sensor (σ {sigma:.3} nm) gave {s:.1}: the piezo's path this model fitted, read by the stage's own sensor"
