@@ -219,11 +219,20 @@ pub enum ResonanceForm {
     RollOff,
     /// A frame mode with its peak gain ([`crate::twin::actuator::ResonantMode::peak_gain`]).
     Peaking,
+    /// A mode under part of the stage, carrying a fraction of the motion
+    /// ([`crate::twin::actuator::ResonantMode::fraction`]): the motion passes at `1 − κ`
+    /// above it, and a low-Q one barely peaks; it mostly turns the phase and lowers the gain
+    /// across an octave, which neither other form can.
+    Partial,
 }
 
 /// The parameters of a peaking `instrument_resonance`.
 const PEAKING_RESONANCE_NAMES: &[(&str, &str)] =
     &[("freq_hz", "Hz"), ("q", "1"), ("peak_gain", "1")];
+
+/// The parameters of a partial `instrument_resonance`.
+const PARTIAL_RESONANCE_NAMES: &[(&str, &str)] =
+    &[("freq_hz", "Hz"), ("q", "1"), ("fraction", "1")];
 
 /// The forms of `detector_nonlinearity`. A detector's departure from linearity is usually one
 /// term: quadratic where the spot sits off the photodiode's centre, cubic where it saturates
@@ -506,6 +515,7 @@ pub(crate) fn nominal_actuator_mode(
         q,
         input: InputHold::Ramped,
         peak_gain: None,
+        fraction: None,
     })
 }
 
@@ -833,7 +843,8 @@ impl ModelSpec {
             fork(&mut out, &single, |s, f| s.nonlinearity = f);
         }
         if first.has(Effect::InstrumentResonance) && first.resonance == ResonanceForm::RollOff {
-            fork(&mut out, &[ResonanceForm::Peaking], |s, f| s.resonance = f);
+            let others = [ResonanceForm::Peaking, ResonanceForm::Partial];
+            fork(&mut out, &others, |s, f| s.resonance = f);
         }
         if first.has(Effect::MainsInterference) && !first.mains_harmonics {
             fork(&mut out, &[true], |s, f| s.mains_harmonics = f);
@@ -881,6 +892,8 @@ impl ModelSpec {
             FLAT_TIP_NAMES
         } else if e == Effect::InstrumentResonance && self.resonance == ResonanceForm::Peaking {
             PEAKING_RESONANCE_NAMES
+        } else if e == Effect::InstrumentResonance && self.resonance == ResonanceForm::Partial {
+            PARTIAL_RESONANCE_NAMES
         } else {
             e.nonlinear_names()
         }
@@ -1288,6 +1301,9 @@ impl Problem {
                 .push(match p(Effect::InstrumentResonance, 2) {
                     Some(g) if spec.resonance == ResonanceForm::Peaking => {
                         ResonantMode::peaking(f.exp(), q.exp(), g.exp())
+                    }
+                    Some(k) if spec.resonance == ResonanceForm::Partial => {
+                        ResonantMode::partial(f.exp(), q.exp(), k.exp())
                     }
                     _ => ResonantMode::held(f.exp(), q.exp()),
                 });
@@ -2230,8 +2246,16 @@ mod tests {
         assert_eq!(forms(&[Effect::DetectorNonlinearity]).len(), 3);
         let resonance = forms(&[Effect::InstrumentResonance]);
         let kinds: Vec<ResonanceForm> = resonance.iter().map(|s| s.resonance).collect();
-        assert_eq!(kinds, [ResonanceForm::RollOff, ResonanceForm::Peaking]);
+        assert_eq!(
+            kinds,
+            [
+                ResonanceForm::RollOff,
+                ResonanceForm::Peaking,
+                ResonanceForm::Partial
+            ]
+        );
         assert_eq!(resonance[1].n_nonlinear(), resonance[0].n_nonlinear() + 1);
+        assert_eq!(resonance[2].n_nonlinear(), resonance[0].n_nonlinear() + 1);
         let mains = forms(&[Effect::MainsInterference]);
         assert_eq!(mains.len(), 2);
         assert!(!mains[0].mains_harmonics && mains[1].mains_harmonics);

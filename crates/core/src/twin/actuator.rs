@@ -39,6 +39,12 @@ pub struct ResonantMode {
     /// scanner's own mode, which rolls off above the resonance.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub peak_gain: Option<f64>,
+    /// A mode carrying only part of the motion (a compliant mount under part of a stage):
+    /// this fraction κ rides on it, the rest passes straight through —
+    /// `(1 − κ) + κ·ω0²/(s² + (ω0/Q)s + ω0²)`, unit gain below the resonance and `1 − κ`
+    /// above. Absent: the whole motion (κ = 1). Ignored beside `peak_gain`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fraction: Option<f64>,
 }
 
 impl ResonantMode {
@@ -49,6 +55,15 @@ impl ResonantMode {
             q,
             input: InputHold::Held,
             peak_gain: None,
+            fraction: None,
+        }
+    }
+
+    /// A held mode that carries a `fraction` of the motion ([`Self::fraction`]).
+    pub fn partial(freq_hz: f64, q: f64, fraction: f64) -> Self {
+        Self {
+            fraction: Some(fraction),
+            ..Self::held(freq_hz, q)
         }
     }
 
@@ -116,9 +131,10 @@ impl Actuator {
                 .iter()
                 .map(|m| {
                     let mode = SecondOrder::with_hold(m.freq_hz, m.q, fs_hz, m.input);
-                    match m.peak_gain {
-                        Some(g) => mode.peaking(g),
-                        None => mode,
+                    match (m.peak_gain, m.fraction) {
+                        (Some(g), _) => mode.peaking(g),
+                        (None, Some(k)) => mode.partial(k),
+                        (None, None) => mode,
                     }
                 })
                 .collect(),

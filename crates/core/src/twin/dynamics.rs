@@ -44,6 +44,8 @@ pub struct SecondOrder {
     damping_time_s: f64,
     /// For a peaking mode ([`Self::peaking`]): the gain of the velocity added to the input.
     velocity_gain: Option<f64>,
+    /// For a partial mode ([`Self::partial`]): the fraction of the input that rides on it.
+    fraction: Option<f64>,
 }
 
 impl SecondOrder {
@@ -87,6 +89,7 @@ impl SecondOrder {
             state: Vector2::zeros(),
             damping_time_s: 1.0 / (w * q),
             velocity_gain: None,
+            fraction: None,
         }
     }
 
@@ -96,6 +99,14 @@ impl SecondOrder {
     /// `ω0²·s/(…)`).
     pub fn peaking(mut self, peak_gain: f64) -> Self {
         self.velocity_gain = Some((peak_gain - 1.0) * self.damping_time_s);
+        self
+    }
+
+    /// The same mode carrying a `fraction` κ of its input, the rest passing straight through:
+    /// `(1 − κ) + κ·ω0²/(s² + (ω0/Q)s + ω0²)`, unit static gain and `1 − κ` above the
+    /// resonance (a compliant mount under part of a stage).
+    pub fn partial(mut self, fraction: f64) -> Self {
+        self.fraction = Some(fraction);
         self
     }
 
@@ -117,9 +128,10 @@ impl SecondOrder {
     }
 
     pub fn output(&self) -> f64 {
-        match self.velocity_gain {
-            Some(c) => self.previous_in + c * self.state[1],
-            None => self.state[0],
+        match (self.velocity_gain, self.fraction) {
+            (Some(c), _) => self.previous_in + c * self.state[1],
+            (None, Some(k)) => self.previous_in + k * (self.state[0] - self.previous_in),
+            (None, None) => self.state[0],
         }
     }
 }
@@ -272,6 +284,39 @@ mod tests {
             let (a, _) = line(f);
             assert!((a - 1.0).abs() < 0.02, "gain at {f} Hz: {a}");
         }
+    }
+
+    /// A partial mode passes a step's share `1 − κ` at once and settles at the whole step;
+    /// at its resonance it gives `(1 − κ) − jκQ` (the mode's share a quarter period behind).
+    #[test]
+    fn a_partial_mode_carries_its_share_of_the_motion() {
+        let (fs, f0, q, kappa) = (20_000.0, 100.0, 3.5, 0.2);
+        let mut m = SecondOrder::new(f0, q, fs).partial(kappa);
+        m.settle(0.0);
+        let first = m.step(1.0);
+        assert!((first - (1.0 - kappa)).abs() < 0.01, "first sample {first}");
+        let settled = (0..20_000).map(|_| m.step(1.0)).last().unwrap();
+        assert!((settled - 1.0).abs() < 1e-9, "settled at {settled}");
+        // A settled line at the resonance: amplitude |(1 − κ) − jκQ|.
+        let mut m = SecondOrder::new(f0, q, fs).partial(kappa);
+        m.settle(0.0);
+        let w = 2.0 * std::f64::consts::PI * f0;
+        let n = (6.0 * fs) as usize;
+        let (mut c, mut s) = (0.0, 0.0);
+        for k in 0..n {
+            let y = m.step((w * (k as f64 - 0.5) / fs).sin());
+            if k >= n / 3 {
+                let t = k as f64 / fs;
+                c += y * (w * t).cos();
+                s += y * (w * t).sin();
+            }
+        }
+        let amplitude = (c * c + s * s).sqrt() / ((n - n / 3) as f64 / 2.0);
+        let expected = ((1.0 - kappa).powi(2) + (kappa * q).powi(2)).sqrt();
+        assert!(
+            (amplitude / expected - 1.0).abs() < 0.02,
+            "{amplitude} against {expected}"
+        );
     }
 
     #[test]
