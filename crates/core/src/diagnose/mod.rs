@@ -2212,6 +2212,20 @@ pub fn diagnose_observed(
     .then(|| rung_by_surroundings(&problem, &final_fit, &white_final, th, n_tr))
     .flatten();
     if let Some((a, j)) = &ambient {
+        // The model after: the twin's residual less the mode's one-step prediction.
+        let predicted_v: Vec<f64> = ambient::unwhiten(&problem.whitening, &a.predicted)
+            .into_iter()
+            .map(|v| v * problem.sigma_w_v)
+            .collect();
+        for (r, p) in final_fit.eval.residual_v.iter_mut().zip(&predicted_v) {
+            *r -= p;
+        }
+        for &k in &problem.left_out {
+            final_fit.eval.residual_v[k] = 0.0;
+        }
+        final_fit.eval.chi2_train = a.train_chi2;
+        final_fit.eval.chi2_held = a.held_chi2;
+        white_final.clone_from(&a.innovations);
         let rms_nm = a.rms * problem.sigma_w_v * problem.sensitivity_nm_per_v;
         let named = EffectReport {
             significant: true,
@@ -2240,30 +2254,13 @@ pub fn diagnose_observed(
                     ci95: [f64::NAN, f64::NAN],
                 },
             ],
+            held_out_nrmse: Some(held_nrmse(&problem, &final_fit)),
             rung_by_surroundings: true,
             detection_limit: None,
             ..unrefitted(Effect::InstrumentResonance, 0.0, None)
         };
         if let Some(r) = (reports.iter_mut()).find(|r| r.id == named.id) {
             *r = named;
-        }
-        // The model after: the twin's residual less the mode's one-step prediction.
-        let predicted_v: Vec<f64> = ambient::unwhiten(&problem.whitening, &a.predicted)
-            .into_iter()
-            .map(|v| v * problem.sigma_w_v)
-            .collect();
-        for (r, p) in final_fit.eval.residual_v.iter_mut().zip(&predicted_v) {
-            *r -= p;
-        }
-        for &k in &problem.left_out {
-            final_fit.eval.residual_v[k] = 0.0;
-        }
-        final_fit.eval.chi2_train = a.train_chi2;
-        final_fit.eval.chi2_held = a.held_chi2;
-        white_final.clone_from(&a.innovations);
-        let nrmse = held_nrmse(&problem, &final_fit);
-        if let Some(r) = reports.iter_mut().find(|r| r.rung_by_surroundings) {
-            r.held_out_nrmse = Some(nrmse);
         }
         chosen_effects.push(Effect::InstrumentResonance);
     }
@@ -2472,7 +2469,7 @@ fn rung_by_surroundings(
     wins.then_some((
         a,
         Judgement {
-            wins,
+            wins: true,
             train_drop,
             held_drop,
             penalty,
