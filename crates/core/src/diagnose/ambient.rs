@@ -57,7 +57,7 @@ pub struct AmbientFit {
 }
 
 /// The resonator's AR(2) coefficients at `fs_hz`: `m[k] = a1·m[k−1] + a2·m[k−2] + forcing`.
-fn ar2(mode: &AmbientMode, fs_hz: f64) -> (f64, f64) {
+pub(super) fn ar2(mode: &AmbientMode, fs_hz: f64) -> (f64, f64) {
     let w0 = 2.0 * std::f64::consts::PI * mode.freq_hz / fs_hz;
     let zeta = 1.0 / (2.0 * mode.q);
     let r = (-zeta * w0).exp();
@@ -196,7 +196,7 @@ fn nelder_mead<const D: usize>(
     simplex[0]
 }
 
-/// Where the fit may look: the searched band's edges, Hz, and Q's.
+/// The Q the fit may take: outside it the likelihood is infinite.
 const Q_RANGE: (f64, f64) = (0.5, 1e5);
 
 /// Fits a mode rung by white forcing where `rung`, to the whitened residual `z` (floor units),
@@ -271,8 +271,9 @@ pub fn fit(
     let h = [1e-4, 1e-2, 1e-2];
     let at = |dx: [f64; 3]| objective(&std::array::from_fn(|j| x[j] + dx[j]));
     let mut hess = nalgebra::Matrix3::<f64>::zeros();
+    // Symmetric: each pair of parameters once (each entry is four filter runs).
     for i in 0..3 {
-        for j in 0..3 {
+        for j in i..3 {
             let e = |a: usize, s: f64| {
                 let mut d = [0.0; 3];
                 d[a] += s * h[a];
@@ -284,6 +285,7 @@ pub fn fit(
                 - at(add(e(i, -1.0), e(j, 1.0)))
                 + at(add(e(i, -1.0), e(j, -1.0))))
                 / (4.0 * h[i] * h[j]);
+            hess[(j, i)] = hess[(i, j)];
         }
     }
     let cov = hess.try_inverse()? * 2.0;

@@ -4894,9 +4894,12 @@ mod tests {
         let sigma = twin.detector.white_noise_v;
         let (from, to) = (segments[1].start_index, segments[2].end_index);
         let (f0, q) = (1100.0, 20.0);
-        let w = 2.0 * std::f64::consts::PI * f0 / FS_HZ;
-        let r = (-w / (2.0 * q)).exp();
-        let (a1, a2) = (2.0 * r * w.cos(), -r * r);
+        let mode = super::ambient::AmbientMode {
+            freq_hz: f0,
+            q,
+            forcing: 1.0,
+        };
+        let (a1, a2) = super::ambient::ar2(&mode, FS_HZ);
         let mut rng = StdRng::seed_from_u64(5);
         let mut m = vec![0.0; drive_v.len()];
         for k in from..to {

@@ -252,31 +252,33 @@ mod tests {
         );
     }
 
+    /// Amplitude and phase of `mode`'s settled response to a unit line at `f` Hz, sampled at
+    /// `fs` (the last 4 s of 6 s, whole periods).
+    fn settled_line(mut mode: SecondOrder, f: f64, fs: f64) -> (f64, f64) {
+        mode.settle(0.0);
+        let w = 2.0 * std::f64::consts::PI * f;
+        let n = (6.0 * fs) as usize;
+        let (mut c, mut s) = (0.0, 0.0);
+        for k in 0..n {
+            // The input is held over each sample: sample it at the step's middle.
+            let t = (k as f64 - 0.5) / fs;
+            let y = mode.step((w * t).sin());
+            if k >= n / 3 {
+                let t = k as f64 / fs;
+                c += y * (w * t).cos();
+                s += y * (w * t).sin();
+            }
+        }
+        let m = (n - n / 3) as f64 / 2.0;
+        ((c * c + s * s).sqrt() / m, c.atan2(s))
+    }
+
     /// A peaking mode passes a line far below and far above its resonance unchanged and
     /// multiplies one at the resonance by its peak gain, in phase.
     #[test]
     fn a_peaking_mode_passes_through_and_peaks_by_its_gain() {
         let (fs, f0, q, g) = (20_000.0, 100.0, 20.0, 3.0);
-        // Amplitude and phase of a settled line at `f` (the last 4 s of 6 s, whole periods).
-        let line = |f: f64| {
-            let mut m = SecondOrder::new(f0, q, fs).peaking(g);
-            m.settle(0.0);
-            let w = 2.0 * std::f64::consts::PI * f;
-            let n = (6.0 * fs) as usize;
-            let (mut c, mut s) = (0.0, 0.0);
-            for k in 0..n {
-                // The input is held over each sample: sample it at the step's middle.
-                let t = (k as f64 - 0.5) / fs;
-                let y = m.step((w * t).sin());
-                if k >= n / 3 {
-                    let t = k as f64 / fs;
-                    c += y * (w * t).cos();
-                    s += y * (w * t).sin();
-                }
-            }
-            let m = (n - n / 3) as f64 / 2.0;
-            ((c * c + s * s).sqrt() / m, c.atan2(s))
-        };
+        let line = |f: f64| settled_line(SecondOrder::new(f0, q, fs).peaking(g), f, fs);
         let (at, phase) = line(f0);
         assert!((at - g).abs() < 0.02 * g, "gain at resonance {at}");
         assert!(phase.abs() < 0.05, "phase at resonance {phase}");
@@ -297,21 +299,7 @@ mod tests {
         assert!((first - (1.0 - kappa)).abs() < 0.01, "first sample {first}");
         let settled = (0..20_000).map(|_| m.step(1.0)).last().unwrap();
         assert!((settled - 1.0).abs() < 1e-9, "settled at {settled}");
-        // A settled line at the resonance: amplitude |(1 − κ) − jκQ|.
-        let mut m = SecondOrder::new(f0, q, fs).partial(kappa);
-        m.settle(0.0);
-        let w = 2.0 * std::f64::consts::PI * f0;
-        let n = (6.0 * fs) as usize;
-        let (mut c, mut s) = (0.0, 0.0);
-        for k in 0..n {
-            let y = m.step((w * (k as f64 - 0.5) / fs).sin());
-            if k >= n / 3 {
-                let t = k as f64 / fs;
-                c += y * (w * t).cos();
-                s += y * (w * t).sin();
-            }
-        }
-        let amplitude = (c * c + s * s).sqrt() / ((n - n / 3) as f64 / 2.0);
+        let (amplitude, _) = settled_line(SecondOrder::new(f0, q, fs).partial(kappa), f0, fs);
         let expected = ((1.0 - kappa).powi(2) + (kappa * q).powi(2)).sqrt();
         assert!(
             (amplitude / expected - 1.0).abs() < 0.02,
