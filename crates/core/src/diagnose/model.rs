@@ -1079,8 +1079,12 @@ pub struct Problem {
     /// Samples in neither: a deflection pinned at its limit and the whitening's reach after
     /// each ([`crate::recording::clip`]). The residual the locations read is zero there.
     pub left_out: Vec<usize>,
-    /// Mains frequency the `mains_interference` module uses, Hz (50 or 60).
+    /// Mains frequency the `mains_interference` module uses, Hz: the grid's 50 or 60 until
+    /// [`Problem::set_mains`] puts the one read from the record ([`super::mains::read`]).
     pub mains_hz: f64,
+    /// The 95 % interval of `mains_hz`, Hz, where it was read from the record: it is then
+    /// one more parameter of `mains_interference`. `None` at the grid's nominal frequency.
+    pub mains_ci95_hz: Option<[f64; 2]>,
     /// Lowest frequency at which the noise floor was measured, Hz.
     pub floor_from_hz: f64,
     /// Whether that floor rises at its bottom as 1/f noise does
@@ -1684,6 +1688,14 @@ impl Problem {
 
     /// Drops the whitening: every residual sample weighs the same, in units of `sigma_v`.
     /// The cached whitened columns go with it.
+    /// Puts the mains frequency `mains_interference` fits at (its closed-form columns are
+    /// computed again on next use).
+    pub fn set_mains(&mut self, mains: super::mains::MainsFrequency) {
+        self.mains_hz = mains.hz;
+        self.mains_ci95_hz = mains.ci95_hz;
+        self.fixed_columns = Default::default();
+    }
+
     pub fn weigh_equally(&mut self, sigma_v: f64) {
         self.whitening = vec![1.0];
         self.sigma_w_v = sigma_v;
@@ -1920,7 +1932,7 @@ impl Problem {
                 "freq_hz".into(),
                 "Hz",
                 self.mains_hz,
-                [self.mains_hz, self.mains_hz],
+                self.mains_ci95_hz.unwrap_or([self.mains_hz, self.mains_hz]),
             ));
         }
         out
@@ -1992,8 +2004,10 @@ fn idx_of(spec: &ModelSpec, effect: Effect, mains_hz: f64) -> usize {
 }
 
 /// Total parameter count of a spec (nonlinear + closed-form), for information criteria.
+/// A mains frequency read from the record counts as one parameter of `mains_interference`.
 pub fn n_params(problem: &Problem, spec: &ModelSpec) -> usize {
-    spec.n_nonlinear() + problem.n_linear(spec)
+    let mains_hz_read = spec.has(Effect::MainsInterference) && problem.mains_ci95_hz.is_some();
+    spec.n_nonlinear() + problem.n_linear(spec) + usize::from(mains_hz_read)
 }
 
 /// θ of the nominal model of `terms` Prony terms at `twin`'s own gain, contact point and
@@ -2038,6 +2052,7 @@ pub(crate) fn test_problem(
         held,
         left_out: vec![],
         mains_hz: 50.0,
+        mains_ci95_hz: None,
         floor_from_hz: 1.0,
         floor_rises_at_bottom: false,
         fixed_columns: Default::default(),
