@@ -127,7 +127,9 @@ pub enum DiagnoseError {
 pub enum Verdict {
     /// A catalog effect explains a significant part of the mismatch.
     Mismatch,
-    /// Nothing significant is missing: the residual sits at the noise floor.
+    /// No catalog effect is significant, and no phase or band stands well above the floor:
+    /// the residual sits at the noise floor, or above it by structure too thinly spread to
+    /// locate ([`AgainstFloor::after_at_floor`] tells which).
     None,
     /// A structured residual remains that no catalog effect explains.
     Unexplained,

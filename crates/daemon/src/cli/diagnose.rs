@@ -336,7 +336,17 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64, reader_warnings: &[Stri
             );
         }
         viscoprobe_core::diagnose::Verdict::None => {
-            println!("verdict: NONE — nothing significant is missing: the residual sits at the noise floor");
+            let f = &d.against_floor;
+            if f.after_at_floor {
+                println!("verdict: NONE — nothing significant is missing: the residual sits at the noise floor");
+            } else {
+                // The verdict reads places (phases, bands); a residual spread thinly over the
+                // whole record can stand above the floor's χ² and still be in none of them.
+                println!(
+                    "verdict: NONE — no catalog effect is significant, but the residual is not at the noise floor either (held-out χ²/sample {:.3} > {:.3}): it is spread too thinly over the record to stand out in any phase or band (see where below)",
+                    d.after.held_out_chi2_per_sample, f.at_floor_limit
+                );
+            }
             if let Some(top) = d.effects.first() {
                 if top.refitted {
                     println!(
