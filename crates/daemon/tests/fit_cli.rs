@@ -666,4 +666,38 @@ fn real_jpk_diagnose_json_keeps_the_documented_keys() {
         &dir,
         &["fit.svg", "residual-time.svg", "residual-spectrum.svg"],
     );
+    // The plain report says the same as the document, with units: the verdict, the
+    // pull-off force in nN with its interval, the fit's NRMSE before and after to the
+    // digits printed, and the pull-off's place in seconds.
+    let plain = stdout(&viscoprobe(&["diagnose", jpk.to_str().unwrap()]));
+    let line = |start: &str| {
+        plain
+            .lines()
+            .map(str::trim_start)
+            .find(|l| l.starts_with(start))
+            .unwrap_or_else(|| panic!("no line starting `{start}`:\n{plain}"))
+            .to_owned()
+    };
+    assert!(
+        line("verdict:").starts_with("verdict: MISMATCH — the nominal twin left out adhesion"),
+        "{plain}"
+    );
+    let force = line("pull_off_force_nn =");
+    assert!(
+        force.contains(&format!(
+            "{pull:.4e} nN (95 % [{:.4e}, {:.4e}])",
+            ci[0], ci[1]
+        )),
+        "{force}"
+    );
+    let fit = line("fit (held-out samples");
+    assert!(
+        fit.contains(&format!(
+            "NRMSE {before:.5} before (nominal) → {after:.5} after"
+        )),
+        "{fit}"
+    );
+    let place = line("time                  pull_off");
+    let to = finite(pull_off, "to");
+    assert!(place.contains(&format!("{from:.3}–{to:<9.3} s")), "{place}");
 }
