@@ -5,8 +5,9 @@
 //! grid's frequency wanders by a few hundredths of a hertz, and over a record of seconds a line
 //! held 0.03 Hz off its true frequency turns by 0.6 rad at the fundamental and 1.8 rad at the
 //! third harmonic: most of the pick-up is then left in the residual, where it can pass for
-//! other physics. The three simulators this project was checked against all put the mains off
-//! the grid's nominal frequency (49.97–50.03 and 59.97–60.03 Hz).
+//! other physics. Both independent simulators this project is scored against put the mains
+//! off the grid's nominal frequency (49.97–50.03 and 59.97–60.03 Hz over their 17 mains
+//! records).
 //!
 //! [`read`] therefore reads the frequency once, from the nominal twin's residual on the train
 //! samples (never the held-out ones), as the one that lets the lines take up the most χ².
