@@ -1028,6 +1028,12 @@ impl ModelSpec {
         theta.get(at).map(|ln_hz| ln_hz.exp())
     }
 
+    /// The quality factor of θ's `instrument_resonance`, if the model has one.
+    pub fn mode_q(&self, theta: &[f64]) -> Option<f64> {
+        let at = self.offset_of(Effect::InstrumentResonance)?;
+        theta.get(at + 1).map(|ln_q| ln_q.exp())
+    }
+
     /// Offset of effect `e`'s nonlinear parameters in θ.
     pub fn offset_of(&self, e: Effect) -> Option<usize> {
         let mut off = self.n_nominal();
