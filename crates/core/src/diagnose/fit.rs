@@ -430,40 +430,16 @@ pub fn fit_model_tied(
     fit_model_freeing(problem, spec, starts, ties, &[], Frees::AS_MODEL, opts, fan)
 }
 
-/// [`fit_model`] from the one `start`, with the actuator's damping free even where the
-/// start's lag is too short for it to show (`model::frees_parameter`); the rest as
-/// [`fit_model`] frees it. For a start where the other parameters have converged: the
-/// damping is held from the first starts because its huge step there stalled the rest, and
-/// from a converged fit there is nothing left for it to stall.
-pub fn fit_model_damping_free(
-    problem: &Problem,
-    spec: &ModelSpec,
-    start: &[f64],
-    opts: FitOptions,
-    fan: &dyn Fan,
-) -> Option<Fitted> {
-    let starts = [start.to_vec()];
-    let frees = Frees {
-        damping: true,
-        ..Frees::AS_MODEL
-    };
-    fit_model_freeing(problem, spec, &starts, &[], &[], frees, opts, fan)
-}
-
-/// [`fit_model`] with the nominal actuator's lag and damping free even where `spec` holds
-/// them ([`ModelSpec::frees_actuator_dynamics`]): for weighing a candidate that frees them
-/// against one that does not, which would otherwise win by the freedom alone.
-pub fn fit_model_dynamics_free(
+/// [`fit_model`] with the nominal actuator's parameters freed further as `frees` says
+/// ([`Frees::DAMPING`], [`Frees::DYNAMICS`]).
+pub fn fit_model_freed(
     problem: &Problem,
     spec: &ModelSpec,
     starts: &[Vec<f64>],
+    frees: Frees,
     opts: FitOptions,
     fan: &dyn Fan,
 ) -> Option<Fitted> {
-    let frees = Frees {
-        dynamics: true,
-        ..Frees::AS_MODEL
-    };
     fit_model_freeing(problem, spec, starts, &[], &[], frees, opts, fan)
 }
 
@@ -493,11 +469,8 @@ pub fn fit_model_holding(
 
 /// Which of the nominal actuator's parameters a fit frees beyond what its model does.
 #[derive(Debug, Clone, Copy)]
-struct Frees {
-    /// The damping, even where the start's lag is too short for it to show, in a model that
-    /// frees the dynamics at all.
+pub struct Frees {
     damping: bool,
-    /// The lag and damping, even in a model that holds them.
     dynamics: bool,
 }
 
@@ -507,6 +480,24 @@ impl Frees {
     const AS_MODEL: Frees = Frees {
         damping: false,
         dynamics: false,
+    };
+
+    /// The damping free even where the start's lag is too short for it to show, in a model
+    /// that frees the dynamics at all; the rest as the model frees it. For a start where the
+    /// other parameters have converged: the damping is held from the first starts because
+    /// its huge step there stalled the rest, and from a converged fit there is nothing left
+    /// for it to stall.
+    pub const DAMPING: Frees = Frees {
+        damping: true,
+        dynamics: false,
+    };
+
+    /// The lag and damping free even where the model holds them: for weighing a candidate
+    /// that frees them against one that does not, which would otherwise win by the freedom
+    /// alone.
+    pub const DYNAMICS: Frees = Frees {
+        damping: false,
+        dynamics: true,
     };
 }
 
@@ -525,11 +516,10 @@ fn fit_model_freeing(
 ) -> Option<Fitted> {
     let lag = spec.actuator_lag();
     let hold = !frees.dynamics && !spec.frees_actuator_dynamics();
-    let damping_free = frees.damping;
     let free_from = |start: &[f64]| -> Vec<usize> {
         (0..spec.n_nonlinear())
             .filter(|&i| {
-                (damping_free && !hold && i == lag + 1) || frees_parameter(i, lag, start, hold)
+                (frees.damping && !hold && i == lag + 1) || frees_parameter(i, lag, start, hold)
             })
             .filter(|&i| ties.iter().all(|&(_, f)| f != i) && !held.contains(&i))
             .collect()
@@ -786,7 +776,7 @@ pub(crate) mod tests {
     }
 
     /// A model that holds the nominal actuator's dynamics (a hysteresis) keeps its start's
-    /// lag in `fit_model`, and fits the stage's lag in `fit_model_dynamics_free`: against a
+    /// lag in `fit_model`, and fits the stage's lag freed with `Frees::DYNAMICS`: against a
     /// stage lagging 0.4 ms, from the nominal fit with its lag put back at the start, the
     /// freed fit finds the lag the nominal fit found, and its χ² falls to a fraction of the
     /// held fit's.
@@ -826,7 +816,8 @@ pub(crate) mod tests {
         start.extend([(1e-3f64).ln(), (0.5f64).ln(), 0.0]);
         let held =
             fit_model(&problem, &spec, std::slice::from_ref(&start), opts, &Serial).expect("fit");
-        let freed = fit_model_dynamics_free(&problem, &spec, &[start], opts, &Serial).expect("fit");
+        let freed = fit_model_freed(&problem, &spec, &[start], Frees::DYNAMICS, opts, &Serial)
+            .expect("fit");
         assert!(lag(&held) < 0.1 * lag_s, "held: {} s", lag(&held));
         assert!(
             (lag(&freed) / lag(&nominal) - 1.0).abs() < 0.1,
@@ -1103,7 +1094,8 @@ pub(crate) mod tests {
         let held = fit_model(&problem, &spec, &[start], opts, &Serial).unwrap();
         assert!(!held.free.contains(&damping), "{:?}", held.free);
         assert_eq!(held.theta[damping], ACTUATOR_Q_START);
-        let freed = fit_model_damping_free(&problem, &spec, &held.theta, opts, &Serial).unwrap();
+        let from = std::slice::from_ref(&held.theta);
+        let freed = fit_model_freed(&problem, &spec, from, Frees::DAMPING, opts, &Serial).unwrap();
         assert!(freed.free.contains(&damping), "{:?}", freed.free);
         let q_fitted = q_of(freed.theta[damping]);
         let n = problem.train.len() as f64;

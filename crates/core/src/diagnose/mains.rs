@@ -53,15 +53,20 @@ pub fn read(problem: &Problem, residual_v: &[f64], nominal_hz: f64) -> MainsFreq
         ci95_hz: None,
     };
     let n_tr = problem.train.len() as f64;
-    let record_s = problem.t_s.last().copied().unwrap_or(0.0);
+    let record_s = problem.record_s();
     if problem.train.len() < 100 || record_s <= 0.0 || nominal_hz.is_nan() || nominal_hz <= 0.0 {
         return at_nominal;
     }
     let white_residual = problem.whiten(residual_v);
+    // The offset's whitened column, the same at every frequency tried.
+    let white_offset = problem.whiten(&vec![1.0; problem.t_s.len()]);
+    let lines_gain = |f_hz: f64, harmonics: &[usize]| {
+        lines_gain(problem, &white_residual, &white_offset, f_hz, harmonics)
+    };
     let below_nyquist: Vec<usize> = (1..=MAINS_HARMONICS)
         .filter(|&h| (h as f64) * nominal_hz * (1.0 + MAINS_WANDER) < problem.fs_hz / 2.0)
         .collect();
-    let gain = |f: f64| lines_gain(problem, &white_residual, f, &below_nyquist);
+    let gain = |f: f64| lines_gain(f, &below_nyquist);
     let half_width = MAINS_WANDER * nominal_hz;
     let lobe = 1.0 / (MAINS_HARMONICS as f64 * record_s);
     let points =
@@ -76,11 +81,12 @@ pub fn read(problem: &Problem, residual_v: &[f64], nominal_hz: f64) -> MainsFreq
     };
     let f = golden_max_within(gain, f_grid - step, f_grid + step, step * 1e-4);
     // A NaN gain (a residual that is not finite) keeps the grid's frequency too.
-    let beats_grid = gain(f) - gain(nominal_hz) > n_tr.ln();
+    let gain_f = gain(f);
+    let beats_grid = gain_f - gain(nominal_hz) > n_tr.ln();
     if !beats_grid {
         return at_nominal;
     }
-    let sd = curvature_sd(&gain, f, lobe / 50.0);
+    let sd = curvature_sd(&gain, f, gain_f, lobe / 50.0);
     // Each harmonic read alone, about the joint reading: where they disagree by more than
     // their errors allow, something else in the residual near one of them (a drive line's
     // misfit, the stage's noise in contact) pulls the joint reading, and nothing in the
@@ -92,13 +98,13 @@ pub fn read(problem: &Problem, residual_v: &[f64], nominal_hz: f64) -> MainsFreq
     let readings: Vec<(f64, f64)> = below_nyquist
         .iter()
         .filter_map(|&h| {
-            let gain_h = |x: f64| lines_gain(problem, &white_residual, x, &[h]);
+            let gain_h = |x: f64| lines_gain(x, &[h]);
             if gain_h(f) <= LINE_MIN_GAIN {
                 return None;
             }
             let reach = 1.0 / (h as f64 * record_s);
             let f_h = golden_max_within(gain_h, f - reach, f + reach, reach * 1e-4);
-            Some((f_h, curvature_sd(&gain_h, f_h, reach / 50.0)))
+            Some((f_h, curvature_sd(&gain_h, f_h, gain_h(f_h), reach / 50.0)))
         })
         .collect();
     let scatter = if readings.len() >= 2 {
@@ -129,10 +135,10 @@ const Z95: f64 = 1.96;
 /// The least χ² a harmonic must take up to be read alone (five of its errors).
 const LINE_MIN_GAIN: f64 = 25.0;
 
-/// The standard error of the maximum `f` of a χ² gain `g`, from its curvature over `d`: the
-/// χ² falls by the gain, and a parameter's variance is 2 / ∂²χ².
-fn curvature_sd(g: &dyn Fn(f64) -> f64, f: f64, d: f64) -> f64 {
-    let curvature = (2.0 * g(f) - g(f - d) - g(f + d)) / (d * d);
+/// The standard error of the maximum `f` of a χ² gain `g` (`g_f` there), from its curvature
+/// over `d`: the χ² falls by the gain, and a parameter's variance is 2 / ∂²χ².
+fn curvature_sd(g: &dyn Fn(f64) -> f64, f: f64, g_f: f64, d: f64) -> f64 {
+    let curvature = (2.0 * g_f - g(f - d) - g(f + d)) / (d * d);
     if curvature > 0.0 {
         (2.0 / curvature).sqrt()
     } else {
@@ -141,16 +147,26 @@ fn curvature_sd(g: &dyn Fn(f64) -> f64, f: f64, d: f64) -> f64 {
 }
 
 /// The train χ² the mains `harmonics` at `f_hz` (1: the line; each a cosine and a sine,
-/// beside an offset) take up from the whitened residual `white_residual`.
-fn lines_gain(problem: &Problem, white_residual: &[f64], f_hz: f64, harmonics: &[usize]) -> f64 {
-    let mut columns: Vec<Vec<f64>> = vec![problem.whiten(&vec![1.0; problem.t_s.len()])];
+/// beside the offset, whitened: `white_offset`) take up from the whitened residual
+/// `white_residual`.
+fn lines_gain(
+    problem: &Problem,
+    white_residual: &[f64],
+    white_offset: &[f64],
+    f_hz: f64,
+    harmonics: &[usize],
+) -> f64 {
+    let mut lines: Vec<Vec<f64>> = vec![];
     for &h in harmonics {
         let w = 2.0 * std::f64::consts::PI * f_hz * h as f64;
         let cos: Vec<f64> = problem.t_s.iter().map(|t| (w * t).cos()).collect();
         let sin: Vec<f64> = problem.t_s.iter().map(|t| (w * t).sin()).collect();
-        columns.push(problem.whiten(&cos));
-        columns.push(problem.whiten(&sin));
+        lines.push(problem.whiten(&cos));
+        lines.push(problem.whiten(&sin));
     }
+    let columns: Vec<&[f64]> = std::iter::once(white_offset)
+        .chain(lines.iter().map(|c| &c[..]))
+        .collect();
     let m = columns.len();
     let train = &problem.train;
     let mut ata = DMatrix::<f64>::zeros(m, m);

@@ -59,6 +59,7 @@ use crate::twin::actuator::Actuator;
 use crate::twin::TipConfig;
 use fit::{
     fit_model, orthonormal_basis, restarted, scan_step_parameters, screen, FitOptions, Fitted,
+    Frees,
 };
 use limit::DetectionLimit;
 use locate::{Location, Phase};
@@ -1175,7 +1176,8 @@ pub fn diagnose_observed(
         if model::damping_at_bound(&f.theta, lag) {
             return f;
         }
-        match fit::fit_model_damping_free(problem, &nominal, &f.theta, nominal_opts, fan) {
+        let from = std::slice::from_ref(&f.theta);
+        match fit::fit_model_freed(problem, &nominal, from, Frees::DAMPING, nominal_opts, fan) {
             Some(e) if e.eval.chi2_train < f.eval.chi2_train - price => e,
             _ => f,
         }
@@ -1345,13 +1347,8 @@ pub fn diagnose_observed(
     if mains_read.ci95_hz.is_some() {
         let mut with_lines = nominal.with(&[Effect::MainsInterference]);
         with_lines.mains_harmonics = true;
-        let refit = fit_model(
-            &problem,
-            &with_lines,
-            &[nom.theta.clone()],
-            nominal_opts,
-            fan,
-        );
+        let from = std::slice::from_ref(&nom.theta);
+        let refit = fit_model(&problem, &with_lines, from, nominal_opts, fan);
         let lines_back = refit.and_then(|f| problem.evaluate(&nominal, &f.theta));
         if let Some(e) = lines_back {
             problem.set_mains(mains::read(&problem, &e.residual_v, grid_hz));
@@ -2179,10 +2176,11 @@ pub fn diagnose_observed(
                 let first_alone = match frees_more {
                     // From the pair's end and from the first's own refit: at the pair's
                     // end the stage may be ideal, where a lag has no slope to grow from.
-                    true => fit::fit_model_dynamics_free(
+                    true => fit::fit_model_freed(
                         &problem,
                         &first.spec,
                         &[start, first.theta.clone()],
+                        Frees::DYNAMICS,
                         refit_opts,
                         fan,
                     ),
@@ -2464,14 +2462,11 @@ fn rung_by_surroundings(
         problem.floor_from_hz,
     )
     .filter(|p| p.significant)?;
-    // A stretch holding a mains line is that line's misfit leaking past its guard (mains
-    // pick-up a little off 50 Hz, beating against the model's line over the record): on the
-    // first proxy's mains record (50.026 Hz, with harmonics) a "mode" at 144 Hz, Q 3, took
-    // up the third harmonic's leak, its peak 141–162 Hz. No mode there can be told from it.
-    let mut mains = (1..=model::MAINS_HARMONICS).flat_map(|h| [50.0 * h as f64, 60.0 * h as f64]);
-    if mains.any(|f| (peak.from..=peak.to).contains(&f)) {
-        return None;
-    }
+    // A stretch holding a mains line was once refused here: pick-up 0.026 Hz off 50 Hz,
+    // beating against a model held at 50 Hz, leaked past the line's guard, and on the first
+    // proxy's set C rec02 a "mode" at 144 Hz, Q 3, took up the third harmonic's leak. The
+    // mains frequency is now read from the record (`mains`), and the leak is gone where it
+    // mattered: without the refusal, all 17 mains records of the proxies name the same.
     let centre = 0.5 * (peak.from + peak.to);
     let band = (
         problem.floor_from_hz.max(0.5 * peak.from),
@@ -3328,7 +3323,7 @@ fn params_of(problem: &Problem, f: &Fitted, e: Effect) -> Vec<Param> {
 fn refusal(problem: &Problem, f: &Fitted) -> Option<&'static str> {
     if mode_beyond_band(&f.spec, &f.theta, problem.fs_hz) {
         Some(MODE_BEYOND_BAND)
-    } else if mode_rings_past_record(&f.spec, &f.theta, problem.t_s.len() as f64 / problem.fs_hz) {
+    } else if mode_rings_past_record(&f.spec, &f.theta, problem.record_s()) {
         Some(MODE_RINGS_PAST_RECORD)
     } else if drag_along_motion(problem, f) {
         Some(DRAG_ALONG_MOTION)
@@ -3699,7 +3694,7 @@ impl StartContext {
             .max_by(|a, b| a.z.total_cmp(&b.z))
             .map_or(fs / 8.0, |l| (l.from * l.to).sqrt().max(1.0));
         Self {
-            record_s: problem.drive.len() as f64 / fs,
+            record_s: problem.record_s(),
             drive_range: (hi - lo).max(1e-9),
             max_indentation_nm: max_h.max(1.0),
             pull_off_nn: pull,
@@ -5183,6 +5178,15 @@ mod tests {
         assert!((f.value - 900.0).abs() < 10.0, "{f:?}");
     }
 
+    /// θ of `spec` at zero but for its `instrument_resonance`, at `hz` and `q`.
+    fn theta_with_mode(spec: &ModelSpec, hz: f64, q: f64) -> Vec<f64> {
+        use super::model::Effect;
+        let mut t = vec![0.0; spec.n_nonlinear()];
+        let at = spec.offset_of(Effect::InstrumentResonance).unwrap();
+        (t[at], t[at + 1]) = (hz.ln(), q.ln());
+        t
+    }
+
     /// A mode is refused above the sampling rate, in either form and beside a partner, and
     /// kept up to it; a model without a mode has none to refuse.
     #[test]
@@ -5191,11 +5195,7 @@ mod tests {
         use super::model::{Effect, ResonanceForm};
         let nominal = ModelSpec::nominal(3);
         let fs = 10_000.0;
-        let theta_with = |spec: &ModelSpec, hz: f64| {
-            let mut t = vec![0.0; spec.n_nonlinear()];
-            t[spec.offset_of(Effect::InstrumentResonance).unwrap()] = hz.ln();
-            t
-        };
+        let theta_with = |spec: &ModelSpec, hz: f64| theta_with_mode(spec, hz, 1.0);
         let roll_off = nominal.with(&[Effect::InstrumentResonance]);
         let peaking = ModelSpec {
             resonance: ResonanceForm::Peaking,
@@ -5224,12 +5224,6 @@ mod tests {
         use super::model::{Effect, ResonanceForm};
         let nominal = ModelSpec::nominal(3);
         let record_s = 1.6;
-        let theta_with = |spec: &ModelSpec, hz: f64, q: f64| {
-            let mut t = vec![0.0; spec.n_nonlinear()];
-            let at = spec.offset_of(Effect::InstrumentResonance).unwrap();
-            (t[at], t[at + 1]) = (hz.ln(), q.ln());
-            t
-        };
         let roll_off = nominal.with(&[Effect::InstrumentResonance]);
         let partial = ModelSpec {
             resonance: ResonanceForm::Partial,
@@ -5238,7 +5232,7 @@ mod tests {
         let pair = nominal.with(&[Effect::Adhesion, Effect::InstrumentResonance]);
         for spec in [&roll_off, &partial, &pair] {
             let rings =
-                |q: f64| mode_rings_past_record(spec, &theta_with(spec, 1199.2, q), record_s);
+                |q: f64| mode_rings_past_record(spec, &theta_with_mode(spec, 1199.2, q), record_s);
             assert!(
                 rings(29_275.0) && rings(1.01 * 1199.2 * record_s),
                 "{spec:?}"

@@ -1692,8 +1692,6 @@ impl Problem {
         self.fixed_columns = Default::default();
     }
 
-    /// Drops the whitening: every residual sample weighs the same, in units of `sigma_v`.
-    /// The cached whitened columns go with it.
     /// Puts the mains frequency `mains_interference` fits at (its closed-form columns are
     /// computed again on next use).
     pub fn set_mains(&mut self, mains: super::mains::MainsFrequency) {
@@ -1702,6 +1700,13 @@ impl Problem {
         self.fixed_columns = Default::default();
     }
 
+    /// The record's length, s: its samples over the sampling rate.
+    pub fn record_s(&self) -> f64 {
+        self.t_s.len() as f64 / self.fs_hz
+    }
+
+    /// Drops the whitening: every residual sample weighs the same, in units of `sigma_v`.
+    /// The cached whitened columns go with it.
     pub fn weigh_equally(&mut self, sigma_v: f64) {
         self.whitening = vec![1.0];
         self.sigma_w_v = sigma_v;
