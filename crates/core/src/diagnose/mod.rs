@@ -343,6 +343,9 @@ pub struct Diagnosis {
     /// The noise of the stage's height sensor, nm, where it witnessed the piezo's path
     /// (a sensor beside a drive in volts; [`EffectReport::sensor_evidence`]).
     pub sensor_sigma_nm: Option<f64>,
+    /// The stage's lag as its height sensor read it, where that refuted the nominal fit's
+    /// ([`SensorLagReading`]).
+    pub sensor_lag: Option<SensorLagReading>,
     /// The noise of the reference channel, V, where it witnessed the models' chain
     /// ([`EffectReport::reference_evidence`]).
     pub reference_sigma_v: Option<f64>,
@@ -439,6 +442,26 @@ impl Diagnosis {
             .map(|e| e.id)
             .collect()
     }
+}
+
+/// A height sensor's reading of the stage's lag that refuted the nominal fit's: the stage
+/// lags the drive by less than the deflection does, so the rest lies after the stage (a
+/// delay of the deflection's channel) or in the sample (the material's own lag).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SensorLagReading {
+    /// The stage's lag behind the drive as the sensor reads it, s.
+    pub lag_s: f64,
+    /// Its standard deviation, s (from the sensor's χ² curvature; NaN where flat).
+    pub lag_sd_s: f64,
+    /// The nominal fit's actuator lag, read from the deflection, s.
+    pub deflection_lag_s: f64,
+    /// How much higher the deflection's train χ² is with the nominal twin refitted at the
+    /// sensor's lag (negative: lower); `None` where that refit failed. Near 0, the sample
+    /// takes up the rest of the deflection's lag as well as a delay would.
+    pub deflection_chi2_cost: Option<f64>,
+    /// The train χ² drop a `channel_delay` must reach to be named (its BIC price): a cost
+    /// under it says the deflection cannot tell the sample's lag from a delay's.
+    pub delay_price: f64,
 }
 
 /// A look-alike of the top-ranked effect: significant on its own, and ranked within
@@ -1865,6 +1888,45 @@ pub fn diagnose_observed(
                 .all(|e| model::CHAIN_EFFECTS.contains(e))
     };
     let sensor_lag = lag_refuted(&nom);
+    // Where the sensor refutes the nominal fit's lag, every model is judged on both channels,
+    // and a candidate whose stage took the sensor's reading of the lag (a channel delay
+    // started from the split) is weighed against the nominal twin refitted at that reading
+    // too, where that fits the two channels' train samples better: like against like. Against
+    // the nominal fit to the deflection alone, such a candidate earns the sensor's whole
+    // refutation, whatever it does for the deflection: on the second proxy's rec26 (a stiff
+    // film's substrate, no delay) a channel delay was named on 40.8 held-out units of the
+    // sensor's and 1.3 of the deflection's. A candidate left at the deflection's lag is
+    // weighed against the nominal fit as before.
+    let at_sensor_lag = (sensor_lag.as_ref())
+        .map(|s| (s, s.nominal_at_sensor_lag(&problem, &nom, refit_opts, fan)));
+    let sensor_lag_reading = at_sensor_lag.as_ref().map(|(s, pinned)| SensorLagReading {
+        lag_s: s.lag_samples / fs,
+        lag_sd_s: s.lag_sd_samples / fs,
+        deflection_lag_s: s.nominal_lag_samples / fs,
+        deflection_chi2_cost: pinned
+            .as_ref()
+            .map(|p| p.eval.chi2_train - nom.eval.chi2_train),
+        delay_price: penalty_of(Effect::ChannelDelay),
+    });
+    let nom_at_sensor_lag = at_sensor_lag.and_then(|(s, pinned)| {
+        let pinned = pinned?;
+        let both = |f: &Fitted| s.chi2(&problem, f).map(|c| f.eval.chi2_train + c.0);
+        (both(&pinned)? < both(&nom)?).then_some((s, pinned))
+    });
+    let nominal_for = |cand: &Fitted| -> &Fitted {
+        match &nom_at_sensor_lag {
+            Some((s, pinned)) => {
+                let lag = cand.theta[cand.spec.actuator_lag()];
+                let to_sensor = (lag - s.lag_samples).abs();
+                if to_sensor < (lag - s.nominal_lag_samples).abs() {
+                    pinned
+                } else {
+                    &nom
+                }
+            }
+            None => &nom,
+        }
+    };
     let judge = |base: &Fitted, cand: &Fitted| -> Judgement {
         let k = (model::n_params(&problem, &cand.spec) as f64
             - model::n_params(&problem, &base.spec) as f64)
@@ -1952,11 +2014,11 @@ pub fn diagnose_observed(
         // weighed, and reported, at its effect switched off where that is better
         // (`at_nothing`). Over every channel: a delay's refit a little above the nominal on
         // the deflection may hand a lag back to the stage that a height sensor reads.
-        let mut j = judge(&nom, refit);
+        let mut j = judge(nominal_for(refit), refit);
         let mut at_nothing = None;
         if j.train_drop < 0.0 {
             for off in self::at_nothing(&problem, &nom, refit) {
-                let j_off = judge(&nom, &off);
+                let j_off = judge(nominal_for(&off), &off);
                 if j_off.train_drop > j.train_drop {
                     (j, at_nothing) = (j_off, Some(off));
                 }
@@ -2210,7 +2272,7 @@ pub fn diagnose_observed(
                             kept = Some((lead, b, fp, j1));
                         } else if lead == a && bic(&f1) < bic(&fa) {
                             // The first alone stands, as the better fit of its own model.
-                            let j0 = judge(&nom, &f1);
+                            let j0 = judge(nominal_for(&f1), &f1);
                             if let Some(r) = reports.iter_mut().find(|r| r.id == a.id()) {
                                 r.evidence = j0.held_drop;
                                 r.train_drop = j0.train_drop;
@@ -2439,6 +2501,7 @@ pub fn diagnose_observed(
         weighting: problem.weighting(),
         look_alikes,
         sensor_sigma_nm: witness.as_ref().map(|w| w.sigma_nm),
+        sensor_lag: sensor_lag_reading,
         reference_sigma_v: reference.as_ref().map(|w| w.sigma_v),
         reference_contact_offset_nm: reference.as_ref().map(|w| w.contact_offset_nm),
         blind_spots,
@@ -2795,6 +2858,22 @@ impl<'w> SensorLag<'w> {
             nominal_lag_samples: l0,
             sigma2_nm2: rss_nom / dof,
         })
+    }
+
+    /// The nominal twin refitted on the deflection with its lag held at the sensor's: the
+    /// other reading of a lag the two channels disagree on, that the material (a retardation
+    /// time, the contact) takes up what of the deflection's lag lies after the stage.
+    fn nominal_at_sensor_lag(
+        &self,
+        problem: &Problem,
+        nom: &Fitted,
+        opts: FitOptions,
+        fan: &dyn Fan,
+    ) -> Option<Fitted> {
+        let lag_at = nom.spec.actuator_lag();
+        let mut start = nom.theta.clone();
+        start[lag_at] = self.lag_samples;
+        fit::fit_model_holding(problem, &nom.spec, &start, &[lag_at], opts, fan)
     }
 
     /// The nominal fit with the sensor's lag and the rest of the deflection's lag handed to
@@ -4438,8 +4517,21 @@ mod tests {
                 && spot.why.contains("measured_height_nm"),
             "{spot:?}"
         );
+        assert!(alone.sensor_lag.is_none());
         let seen = diagnose(&sensed(&twin, &stage_v, &drive_v, Some(0.05)), &opts).unwrap();
         assert!(seen.blind_spots.is_empty(), "{:?}", seen.blind_spots);
+        // The sensor reads the stage's own lag, and the nominal twin held there misfits the
+        // deflection by more than a delay's price: the sample does not take the delay up.
+        let reading = seen
+            .sensor_lag
+            .as_ref()
+            .expect("the sensor refutes the lag");
+        assert!(
+            (reading.lag_s / stage_lag_s - 1.0).abs() < 0.05
+                && (reading.deflection_lag_s / both - 1.0).abs() < 0.1
+                && reading.deflection_chi2_cost.unwrap() > reading.delay_price,
+            "{reading:?}"
+        );
         let top = &seen.effects[0];
         assert!(top.significant && top.id == "channel_delay", "{top:?}");
         assert!(top.sensor_evidence.unwrap() > 100.0, "{top:?}");

@@ -149,6 +149,13 @@ pub fn diagnosis_json(file: &str, d: &Diagnosis, seconds: f64) -> Value {
         })).collect::<Vec<_>>(),
         "base_position": d.base_position.id(),
         "sensor_sigma_nm": d.sensor_sigma_nm,
+        "sensor_lag": d.sensor_lag.as_ref().map(|l| json!({
+            "lag_s": l.lag_s,
+            "lag_sd_s": finite_or_null(l.lag_sd_s),
+            "deflection_lag_s": l.deflection_lag_s,
+            "deflection_chi2_cost": l.deflection_chi2_cost,
+            "delay_price": l.delay_price,
+        })),
         "reference_sigma_v": d.reference_sigma_v,
         "reference_contact_offset_nm": d.reference_contact_offset_nm,
         "channel_notes": d.channel_notes,
@@ -325,6 +332,33 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64, reader_warnings: &[Stri
         println!(
             "hard reference (reference_deflection_v): σ {:.3} mV; {contact}",
             sigma * 1e3
+        );
+    }
+    if let (Some(l), Some(sigma)) = (&d.sensor_lag, d.sensor_sigma_nm) {
+        let sd = if l.lag_sd_s.is_finite() {
+            format!(" ± {:.2}", l.lag_sd_s * 1e6)
+        } else {
+            String::new()
+        };
+        let cost = match l.deflection_chi2_cost {
+            Some(c) if c < 0.0 => format!(
+                "; held at the sensor's lag, the nominal twin fits the deflection's train samples better, by {:.1} χ² units",
+                -c
+            ),
+            Some(c) if c < l.delay_price => format!(
+                "; held at the sensor's lag, the nominal twin fits the deflection's train samples worse by only {c:.1} χ² units, under the {:.1} a delay must gain: the sample's material takes up the rest of the lag as well as a delay would",
+                l.delay_price
+            ),
+            Some(c) => format!(
+                "; held at the sensor's lag, the nominal twin fits the deflection's train samples worse by {c:.1} χ² units, over the {:.1} a delay must gain: the sample's material does not take up the rest of the lag",
+                l.delay_price
+            ),
+            None => String::new(),
+        };
+        println!(
+            "height sensor (measured_height_nm, σ {sigma:.3} nm): the stage lags the drive by {:.2}{sd} µs, less than the {:.2} µs the nominal twin's actuator took from the deflection{cost}",
+            l.lag_s * 1e6,
+            l.deflection_lag_s * 1e6
         );
     }
     let sig: Vec<_> = d.effects.iter().filter(|e| e.significant).collect();
