@@ -2861,8 +2861,9 @@ impl<'w> SensorLag<'w> {
     }
 
     /// The nominal twin refitted on the deflection with its lag held at the sensor's: the
-    /// other reading of a lag the two channels disagree on, that the material (a retardation
-    /// time, the contact) takes up what of the deflection's lag lies after the stage.
+    /// other reading of a lag the two channels disagree on, in which the sample (a
+    /// retardation time, the contact), not a delay, takes up the part of the deflection's lag
+    /// that lies after the stage.
     fn nominal_at_sensor_lag(
         &self,
         problem: &Problem,
