@@ -5327,6 +5327,23 @@ mod tests {
         t
     }
 
+    /// The models a mode's refusal is asked of: the three-term nominal with a roll-off mode,
+    /// with the mode in `form`, and with the roll-off beside `partner`.
+    fn models_with_a_mode(
+        form: super::model::ResonanceForm,
+        partner: super::model::Effect,
+    ) -> [ModelSpec; 3] {
+        use super::model::Effect::InstrumentResonance;
+        let nominal = ModelSpec::nominal(3);
+        let roll_off = nominal.with(&[InstrumentResonance]);
+        let other_form = ModelSpec {
+            resonance: form,
+            ..roll_off.clone()
+        };
+        let pair = nominal.with(&[partner, InstrumentResonance]);
+        [roll_off, other_form, pair]
+    }
+
     /// A mode is refused above the sampling rate, in either form and beside a partner, and
     /// kept up to it; a model without a mode has none to refuse.
     #[test]
@@ -5336,13 +5353,7 @@ mod tests {
         let nominal = ModelSpec::nominal(3);
         let fs = 10_000.0;
         let theta_with = |spec: &ModelSpec, hz: f64| theta_with_mode(spec, hz, 1.0);
-        let roll_off = nominal.with(&[Effect::InstrumentResonance]);
-        let peaking = ModelSpec {
-            resonance: ResonanceForm::Peaking,
-            ..roll_off.clone()
-        };
-        let pair = nominal.with(&[Effect::ChannelDelay, Effect::InstrumentResonance]);
-        for spec in [&roll_off, &peaking, &pair] {
+        for spec in &models_with_a_mode(ResonanceForm::Peaking, Effect::ChannelDelay) {
             let mode = |hz: f64| mode_beyond_band(spec, &theta_with(spec, hz), fs);
             assert!(mode(68_700.0) && mode(1.01 * fs), "{spec:?}");
             assert!(!mode(0.99 * fs) && !mode(868.0), "{spec:?}");
@@ -5364,13 +5375,7 @@ mod tests {
         use super::model::{Effect, ResonanceForm};
         let nominal = ModelSpec::nominal(3);
         let record_s = 1.6;
-        let roll_off = nominal.with(&[Effect::InstrumentResonance]);
-        let partial = ModelSpec {
-            resonance: ResonanceForm::Partial,
-            ..roll_off.clone()
-        };
-        let pair = nominal.with(&[Effect::Adhesion, Effect::InstrumentResonance]);
-        for spec in [&roll_off, &partial, &pair] {
+        for spec in &models_with_a_mode(ResonanceForm::Partial, Effect::Adhesion) {
             let rings =
                 |q: f64| mode_rings_past_record(spec, &theta_with_mode(spec, 1199.2, q), record_s);
             assert!(
