@@ -37,6 +37,8 @@ fn twin() -> TwinConfig {
             thickness_nm: None,
             surface_drift_nm_per_s: None,
             surface_drift_curvature_nm_per_s2: None,
+            surface_wander_nm: None,
+            surface_wander_hz: None,
         },
         reference: ReferenceConfig {
             contact_point_nm: 100.0,

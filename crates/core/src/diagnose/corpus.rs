@@ -314,6 +314,8 @@ fn design_twin() -> TwinConfig {
             thickness_nm: None,
             surface_drift_nm_per_s: None,
             surface_drift_curvature_nm_per_s2: None,
+            surface_wander_nm: None,
+            surface_wander_hz: None,
         },
         reference: ReferenceConfig::default(),
         detector: DetectorConfig {

@@ -1387,6 +1387,8 @@ impl Problem {
                     .then(|| p(Effect::ThermalDrift, 1))
                     .flatten()
                     .map(|x| x * SURFACE_DRIFT_SCALE_NM_PER_S),
+                surface_wander_nm: None,
+                surface_wander_hz: None,
             },
             reference: ReferenceConfig::default(),
             detector,

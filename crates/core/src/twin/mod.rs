@@ -216,7 +216,20 @@ pub struct SampleConfig {
     /// Curvature of that drift, nm/s² (the surface moves by `v·t + c·t²`; absent: none).
     #[serde(default)]
     pub surface_drift_curvature_nm_per_s2: Option<f64>,
+    /// A wandering surface height, on top of the drift: its rms, nm (absent: none). A stage
+    /// whose temperature follows the room's air wanders rather than drifts along a
+    /// parabola; the wander is white noise low-passed twice at its corner, from zero at
+    /// settling, drawn from the twin's seed (`Twin::wander_step`).
+    #[serde(default)]
+    pub surface_wander_nm: Option<f64>,
+    /// The wander's corner frequency, Hz (absent: [`DEFAULT_SURFACE_WANDER_HZ`]).
+    #[serde(default)]
+    pub surface_wander_hz: Option<f64>,
 }
+
+/// The corner of a surface wander whose config names none, Hz: slower than every line of
+/// the design's multisine, as thermal wander is.
+pub const DEFAULT_SURFACE_WANDER_HZ: f64 = 1.0;
 
 /// `[sample.neck]`: a soft, sticky sample does not let go at the DMT pull-off; a neck (a
 /// tether of material, or a meniscus) drawn out of the surface holds the tip and pulls with
@@ -451,6 +464,17 @@ impl TwinConfig {
                 });
             }
         }
+        for (key, value) in [
+            ("sample.surface_wander_nm", self.sample.surface_wander_nm),
+            ("sample.surface_wander_hz", self.sample.surface_wander_hz),
+        ] {
+            if let Some(v) = value.filter(|v| !(v.is_finite() && *v >= 0.0)) {
+                issues.push(ConfigIssue {
+                    path: p(key),
+                    message: format!("must be a finite number ≥ 0 (got {v})"),
+                });
+            }
+        }
         if m.j0_per_pa.is_finite() && m.instantaneous_compliance() <= 0.0 {
             issues.push(ConfigIssue {
                 path: p("sample.material"),
@@ -531,6 +555,9 @@ pub struct TruthSample {
     /// of contact, `K/(K + k_c)` against a sample of contact stiffness `k_c`, which takes the
     /// rest. The diagnosis's closed-form drag regressor is the drag force times this share.
     pub lever_share: f64,
+    /// Base position at which the tip touches the surface under it, nm: the sample's contact
+    /// point moved by its drift and wander (the reference's on the reference).
+    pub surface_nm: f64,
 }
 
 /// One simulated sample.
@@ -561,6 +588,11 @@ pub struct Twin {
     lever: Option<SecondOrder>,
     detector: Detector,
     sensor_rng: StdRng,
+    /// The surface's wander now, nm, the first stage of its low-pass, and the generator it
+    /// is drawn from.
+    wander_nm: f64,
+    wander_inner_nm: f64,
+    wander_rng: StdRng,
     last_base_nm: f64,
     /// The base position one sample before that, nm (the drag's velocity is a second-order
     /// difference: see [`base_velocity`]).
@@ -595,6 +627,9 @@ impl Twin {
                 .map(|m| SecondOrder::with_hold(m.freq_hz, m.q, fs_hz, m.input)),
             detector: Detector::new(&cfg.detector, fs_hz, cfg.seed),
             sensor_rng: StdRng::seed_from_u64(cfg.seed ^ 0x5eed_4e16),
+            wander_nm: 0.0,
+            wander_inner_nm: 0.0,
+            wander_rng: StdRng::seed_from_u64(cfg.seed ^ 0x3a2d_e7f1),
             cfg: cfg.clone(),
             fs_hz,
             last_base_nm: 0.0,
@@ -622,6 +657,8 @@ impl Twin {
         self.in_contact = false;
         self.neck_foot_m = None;
         self.elapsed_samples = 0;
+        self.wander_nm = 0.0;
+        self.wander_inner_nm = 0.0;
         self.shape.forget();
         self.last_base_nm = self.actuator.position_nm();
         self.earlier_base_nm = self.last_base_nm;
@@ -678,6 +715,7 @@ impl Twin {
             0.0
         };
         self.elapsed_samples += 1;
+        self.wander_step();
         TwinSample {
             deflection_v,
             measured_height_nm,
@@ -688,6 +726,7 @@ impl Twin {
                 indentation_m,
                 in_contact: self.in_contact,
                 lever_share,
+                surface_nm: surface,
             },
         }
     }
@@ -722,13 +761,31 @@ impl Twin {
     }
 
     /// Base position at which the tip touches the soft sample now (its contact point, moved
-    /// by the surface drift), nm.
+    /// by the surface drift and wander), nm.
     fn soft_surface_nm(&self) -> f64 {
         let s = &self.cfg.sample;
         let t = self.elapsed_samples as f64 / self.fs_hz;
         let drift = s.surface_drift_nm_per_s.unwrap_or(0.0) * t
             + s.surface_drift_curvature_nm_per_s2.unwrap_or(0.0) * t * t;
-        s.contact_point_nm - drift
+        s.contact_point_nm - drift - self.wander_nm
+    }
+
+    /// One sample of the surface's wander: white noise through two one-pole low-passes at
+    /// the corner `f_c` (`a = e^{−2π f_c/f_s}`), the first an Ornstein–Uhlenbeck process of
+    /// rms `√2·σ`, the second of unit gain, which halves the variance: rms σ to the first
+    /// order in `f_c/f_s`. Two poles, as a stage's heat capacity smooths what the room's air
+    /// does to it: its spectrum falls as f⁻⁴ above the corner.
+    fn wander_step(&mut self) {
+        let s = &self.cfg.sample;
+        let Some(sigma) = s.surface_wander_nm.filter(|&v| v > 0.0) else {
+            return;
+        };
+        let fc = s.surface_wander_hz.unwrap_or(DEFAULT_SURFACE_WANDER_HZ);
+        let a = (-2.0 * std::f64::consts::PI * fc / self.fs_hz).exp();
+        let z: f64 = StandardNormal.sample(&mut self.wander_rng);
+        let inner = std::f64::consts::SQRT_2 * sigma;
+        self.wander_inner_nm = a * self.wander_inner_nm + inner * (1.0 - a * a).sqrt() * z;
+        self.wander_nm = a * self.wander_nm + (1.0 - a) * self.wander_inner_nm;
     }
 
     fn solve_soft(&mut self, base_nm: f64, f_ext_n: f64, commit: bool) -> (f64, f64) {

@@ -33,6 +33,8 @@ fn base_config() -> TwinConfig {
             thickness_nm: None,
             surface_drift_nm_per_s: None,
             surface_drift_curvature_nm_per_s2: None,
+            surface_wander_nm: None,
+            surface_wander_hz: None,
         },
         reference: ReferenceConfig {
             contact_point_nm: 100.0,
@@ -217,6 +219,42 @@ fn surface_drift_moves_the_contact_point() {
         issues
             .iter()
             .any(|i| i.path == "sample.surface_drift_nm_per_s"),
+        "{issues:?}"
+    );
+}
+
+/// A wandering surface: its rms over a long record is the configured one (two poles at the
+/// corner: σ to first order in f_c/f_s), it starts from zero at settling, the same seed
+/// gives the same wander, the truth reports the surface it moved, and a negative rms is
+/// refused with its key.
+#[test]
+fn surface_wander_has_its_rms_and_seed() {
+    let mut cfg = base_config();
+    cfg.sample.surface_wander_nm = Some(0.5);
+    cfg.sample.surface_wander_hz = Some(5.0);
+    assert!(cfg.validate("").is_empty());
+    let fs = 1000.0;
+    let surfaces = |cfg: &TwinConfig| -> Vec<f64> {
+        let mut twin = Twin::new(cfg, fs);
+        twin.settle(0.0);
+        (0..200_000)
+            .map(|_| twin.step(0.0).truth.surface_nm)
+            .collect()
+    };
+    let s = surfaces(&cfg);
+    let z = cfg.sample.contact_point_nm;
+    assert_eq!(s[0], z);
+    let rms = (s.iter().map(|v| (v - z).powi(2)).sum::<f64>() / s.len() as f64).sqrt();
+    assert!((rms / 0.5 - 1.0).abs() < 0.1, "{rms} nm rms");
+    assert_eq!(s, surfaces(&cfg));
+    let mut other = cfg.clone();
+    other.seed += 1;
+    assert_ne!(s, surfaces(&other));
+    let mut bad = base_config();
+    bad.sample.surface_wander_nm = Some(-1.0);
+    let issues = bad.validate("");
+    assert!(
+        issues.iter().any(|i| i.path == "sample.surface_wander_nm"),
         "{issues:?}"
     );
 }
