@@ -1362,7 +1362,7 @@ pub fn diagnose_observed(
         let ind = &nom.eval.sim.indentation_m;
         let first = ind.iter().position(|&h| h > 0.0).unwrap_or(0);
         let last = ind.iter().rposition(|&h| h > 0.0).unwrap_or(n - 1);
-        problem.wander_span_s = (t_s[first], t_s[last.max(first + 1).min(n - 1)]);
+        problem.wander_span_s = (t_s[first], t_s[last]);
     }
     // The mains frequency, read from the nominal residual (`mains`): a grid 0.03 Hz off
     // its nominal frequency leaves most of a pick-up held at 50 Hz in the residual.
@@ -1662,14 +1662,16 @@ pub fn diagnose_observed(
             // was a creep's (the concealed corpus's creep beside a detector's curvature,
             // seed 1, named a drift beside the curvature) or the part a pair's partner
             // leaves. Where it stands, the drift's best other form is its stand-in in a pair.
-            let best_of = |fits: &mut dyn Iterator<Item = &Fitted>| {
-                fits.min_by(|a, b| bic(a).total_cmp(&bic(b))).cloned()
-            };
-            let fixed = best_of(&mut fits.iter().filter(|f| !f.spec.wanders()));
-            let wander = best_of(&mut fits.iter()).filter(|f| f.spec.wanders());
-            let (best, plain) = match wander.filter(|w| train_at_floor(w)) {
-                Some(w) => (w, fixed),
-                None => (fixed?, fits.into_iter().find(|f| f.spec == spec)),
+            let by_bic = |a: &&Fitted, b: &&Fitted| bic(a).total_cmp(&bic(b));
+            let fixed = fits.iter().filter(|f| !f.spec.wanders()).min_by(by_bic);
+            let wander =
+                (fits.iter().min_by(by_bic)).filter(|f| f.spec.wanders() && train_at_floor(f));
+            let (best, plain) = match wander {
+                Some(w) => (w.clone(), fixed.cloned()),
+                None => (
+                    fixed?.clone(),
+                    fits.iter().find(|f| f.spec == spec).cloned(),
+                ),
             };
             // The deflection alone barely tells a delay from the lag it took over, and a creep
             // it barely shows strays in its fit (trading with the gain and the material) until
@@ -1771,13 +1773,16 @@ pub fn diagnose_observed(
             .filter(|f| f.eval.chi2_train < nom.eval.chi2_train)
             .map(|f| f.theta[..n_nom].to_vec())
             .collect();
+        let better = |effect: Effect| {
+            (singles.iter())
+                .filter(move |(e, f)| *e == effect && f.eval.chi2_train < nom.eval.chi2_train)
+                .map(|(_, f)| f)
+        };
         // A material of one more term that fits better says the nominal fit missed a basin
         // of its own order: two of its terms had merged, or one sat where no data are. Each
         // material that keeps all but one of those terms starts the nominal fit too.
-        for (e, f) in singles {
-            if *e == Effect::MissingRelaxation && f.eval.chi2_train < nom.eval.chi2_train {
-                from.extend(one_term_fewer(&nominal, f));
-            }
+        for f in better(Effect::MissingRelaxation) {
+            from.extend(one_term_fewer(&nominal, f));
         }
         // A delay's refit that fits better starts the nominal fit with the delay folded into
         // the actuator's lag (`delay_folded_into_lag`). From its nominal part alone the fit
@@ -1785,15 +1790,13 @@ pub fn diagnose_observed(
         // 42 µs lag driven in nm, its nominal fit stopped at no lag) a delay of 31 µs was
         // named on 25.5 held-out units over a price of 19.5; from the fold the nominal fit
         // reads a lag of 37 µs, and nothing is named.
-        for (e, f) in singles {
-            if *e == Effect::ChannelDelay && f.eval.chi2_train < nom.eval.chi2_train {
-                from.extend(delay_folded_into_lag(
-                    &nominal,
-                    &f.spec,
-                    &f.theta,
-                    problem.fs_hz,
-                ));
-            }
+        for f in better(Effect::ChannelDelay) {
+            from.extend(delay_folded_into_lag(
+                &nominal,
+                &f.spec,
+                &f.theta,
+                problem.fs_hz,
+            ));
         }
         // The best of the starts is polished, not each (`fit_model` keeps the best).
         if from.is_empty() {
@@ -2166,15 +2169,11 @@ pub fn diagnose_observed(
                 .iter()
                 .chain(&plain_forms)
                 .filter(|(b, _)| *b != a)
-                .filter(|(_, f)| !f.spec.wanders())
                 .filter(|(b, _)| wide || significant_alone(b))
                 .collect();
             // Each job: the pair's first effect, the fit its nominal part starts from, and the
             // partner.
-            let mut jobs: Vec<PairJob> = (others.iter())
-                .filter(|_| !fa.spec.wanders())
-                .map(|o| (a, &fa, *o))
-                .collect();
+            let mut jobs: Vec<PairJob> = others.iter().map(|o| (a, &fa, *o)).collect();
             // The first effect likewise, where the best one leaves structure: its best form
             // may be bent to mimic the partner (an adhesive neck standing in for a blunt
             // cone's contact), and only its plain form pairs with the partner's truth.
@@ -2195,6 +2194,13 @@ pub fn diagnose_observed(
                 }
             }
             let fit_pair = |&(_, first, (_, fb)): &PairJob| -> Option<Fitted> {
+                // A wandering drift pairs with nothing: where it stands it explains the record
+                // (`refit_one`), and as a pair's partner or first its spline took up what
+                // another effect left (a wrong second name on seven proxy records); the drift
+                // pairs in its best other form.
+                if first.spec.wanders() || fb.spec.wanders() {
+                    return None;
+                }
                 let spec = ModelSpec::pair_of(&first.spec, &fb.spec);
                 // The first's nominal part starts the pair. Where that fit ends above the
                 // first model alone, which the pair contains, it has failed, and the
@@ -2252,8 +2258,7 @@ pub fn diagnose_observed(
                     sig_singles.iter().skip(1).take(RIVALS).collect();
                 for (k, (r, fr, _)) in runners_up.iter().enumerate() {
                     for (b, _, _) in &runners_up[k + 1..] {
-                        let partner = singles.iter().find(|(e, f)| e == b && !f.spec.wanders());
-                        if let Some(partner) = partner.filter(|_| !fr.spec.wanders()) {
+                        if let Some(partner) = singles.iter().find(|(e, _)| e == b) {
                             rival_jobs.push((*r, fr, partner));
                         }
                     }
@@ -4764,9 +4769,7 @@ mod tests {
             .filter(|s| s.indentation_m > 0.0)
             .map(|s| twin.sample.contact_point_nm - s.surface_nm)
             .collect();
-        let n = wander.len() as f64;
-        let mean = wander.iter().sum::<f64>() / n;
-        let truth_rms = (wander.iter().map(|w| (w - mean).powi(2)).sum::<f64>() / n).sqrt();
+        let (truth_rms, _) = super::model::spread(&wander);
         let d = diagnosed(&twin, fs);
         let value = named_alone(&d, "thermal_drift");
         let ratio = value("wander_rms_nm") / truth_rms;

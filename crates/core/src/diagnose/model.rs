@@ -377,6 +377,18 @@ pub const WANDER_INTERVALS: usize = 12;
 /// has three more basis functions than intervals.
 pub const WANDER_KNOTS: usize = WANDER_INTERVALS + 3;
 
+/// The rms of `values` about their mean, and their range (peak to peak): a wander's size,
+/// its mean being the contact point's.
+pub(crate) fn spread(values: &[f64]) -> (f64, f64) {
+    let n = values.len().max(1) as f64;
+    let mean = values.iter().sum::<f64>() / n;
+    let rms = (values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n).sqrt();
+    let (lo, hi) = (values.iter()).fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| {
+        (a.min(v), b.max(v))
+    });
+    (rms, hi - lo)
+}
+
 /// Basis function `j` of the wandering drift's spline at `x` knot spacings from the first
 /// knot: the cardinal cubic B-spline centred on knot `j − 1`, so that the basis sums to one
 /// everywhere from the first knot to the last. Written out: it is four lines, and a spline
@@ -1684,6 +1696,21 @@ impl Problem {
             .collect()
     }
 
+    /// The wandering drift of `coefficients` (nm, one per basis function), nm, at each sample
+    /// from its first knot to its last.
+    fn wander_curve(&self, coefficients: &[f64]) -> Vec<f64> {
+        let (t0, h) = self.wander_grid();
+        let t1 = t0 + h * WANDER_INTERVALS as f64;
+        (self.t_s.iter())
+            .filter(|&&t| t >= t0 && t <= t1)
+            .map(|&t| {
+                (coefficients.iter().enumerate())
+                    .map(|(j, c)| c * wander_basis(j, (t - t0) / h))
+                    .sum()
+            })
+            .collect()
+    }
+
     /// The surface height along basis function `j` of the wandering drift, at 1 nm, in V of
     /// deflection: the twin's deflection follows a slow surface shift by the contact's share
     /// `1 − s` of it (`s`: the lever's, [`Problem::slow_share`], 1 when free).
@@ -1770,14 +1797,12 @@ impl Problem {
             let hi = c.iter().rposition(|&v| v != 0.0).map_or(0, |k| k + 1);
             let (from, to) = (lo.saturating_sub(reach), (hi + reach).min(c.len()));
             let mut wc = vec![0.0; c.len()];
-            if from < to {
-                wc[from..to].copy_from_slice(&self.whiten(&c[from..to]));
-            }
+            wc[from..to].copy_from_slice(&self.whiten(&c[from..to]));
             Regressor {
                 raw: Cow::Owned(c),
                 white: Cow::Owned(wc),
                 fixed: None,
-                span: from..to.max(from),
+                span: from..to,
             }
         };
         let mut cols = vec![borrowed(FixedColumn::Offset)];
@@ -2096,30 +2121,12 @@ impl Problem {
         }
         if wandering {
             let i = idx_of(spec, effect, self.mains_hz);
-            let (t0, h) = self.wander_grid();
-            let t1 = t0 + h * WANDER_INTERVALS as f64;
-            let curve: Vec<f64> = (self.t_s.iter())
-                .filter(|&&t| t >= t0 && t <= t1)
-                .map(|&t| {
-                    (0..WANDER_KNOTS)
-                        .map(|j| {
-                            linear.get(i + j).copied().unwrap_or(f64::NAN)
-                                * wander_basis(j, (t - t0) / h)
-                        })
-                        .sum::<f64>()
-                })
-                .collect();
-            let n = curve.len().max(1) as f64;
-            let mean = curve.iter().sum::<f64>() / n;
-            let rms = (curve.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n).sqrt();
-            let (lo, hi) = curve
-                .iter()
-                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| {
-                    (a.min(v), b.max(v))
-                });
+            let coefficients = linear.get(i..i + WANDER_KNOTS).unwrap_or(&[]);
+            let (rms, peak_to_peak) = spread(&self.wander_curve(coefficients));
             let none = [f64::NAN, f64::NAN];
+            let (_, h) = self.wander_grid();
             out.push(("wander_rms_nm".into(), "nm", rms, none));
-            out.push(("wander_peak_to_peak_nm".into(), "nm", hi - lo, none));
+            out.push(("wander_peak_to_peak_nm".into(), "nm", peak_to_peak, none));
             out.push(("knot_spacing_s".into(), "s", h, [h, h]));
         }
         if effect == Effect::MainsInterference {

@@ -227,8 +227,8 @@ pub struct SampleConfig {
     pub surface_wander_hz: Option<f64>,
 }
 
-/// The corner of a surface wander whose config names none, Hz: slower than every line of
-/// the design's multisine, as thermal wander is.
+/// The corner of a surface wander whose config names none, Hz: at the slowest line of the
+/// default design's multisine (1 Hz), under which thermal drift hides.
 pub const DEFAULT_SURFACE_WANDER_HZ: f64 = 1.0;
 
 /// `[sample.neck]`: a soft, sticky sample does not let go at the DMT pull-off; a neck (a
@@ -464,16 +464,18 @@ impl TwinConfig {
                 });
             }
         }
-        for (key, value) in [
-            ("sample.surface_wander_nm", self.sample.surface_wander_nm),
-            ("sample.surface_wander_hz", self.sample.surface_wander_hz),
-        ] {
-            if let Some(v) = value.filter(|v| !(v.is_finite() && *v >= 0.0)) {
-                issues.push(ConfigIssue {
-                    path: p(key),
-                    message: format!("must be a finite number ≥ 0 (got {v})"),
-                });
-            }
+        if let Some(v) = (self.sample.surface_wander_nm).filter(|v| !(v.is_finite() && *v >= 0.0)) {
+            issues.push(ConfigIssue {
+                path: p("sample.surface_wander_nm"),
+                message: format!("must be a finite number ≥ 0 (got {v})"),
+            });
+        }
+        // A wander of no corner would never move.
+        if let Some(v) = (self.sample.surface_wander_hz).filter(|v| !(v.is_finite() && *v > 0.0)) {
+            issues.push(ConfigIssue {
+                path: p("sample.surface_wander_hz"),
+                message: format!("must be a finite frequency > 0 (got {v})"),
+            });
         }
         if m.j0_per_pa.is_finite() && m.instantaneous_compliance() <= 0.0 {
             issues.push(ConfigIssue {

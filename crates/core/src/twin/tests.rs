@@ -225,8 +225,8 @@ fn surface_drift_moves_the_contact_point() {
 
 /// A wandering surface: its rms over a long record is the configured one (two poles at the
 /// corner: σ to first order in f_c/f_s), it starts from zero at settling, the same seed
-/// gives the same wander, the truth reports the surface it moved, and a negative rms is
-/// refused with its key.
+/// gives the same wander, the truth reports the surface it moved, and a negative rms or a
+/// corner of 0 Hz is refused with its key.
 #[test]
 fn surface_wander_has_its_rms_and_seed() {
     let mut cfg = base_config();
@@ -252,11 +252,11 @@ fn surface_wander_has_its_rms_and_seed() {
     assert_ne!(s, surfaces(&other));
     let mut bad = base_config();
     bad.sample.surface_wander_nm = Some(-1.0);
+    bad.sample.surface_wander_hz = Some(0.0);
     let issues = bad.validate("");
-    assert!(
-        issues.iter().any(|i| i.path == "sample.surface_wander_nm"),
-        "{issues:?}"
-    );
+    for key in ["sample.surface_wander_nm", "sample.surface_wander_hz"] {
+        assert!(issues.iter().any(|i| i.path == key), "{key}: {issues:?}");
+    }
 }
 
 /// Drag c·v on the free lever deflects it by c·v/K (lever share 1); pressed into an elastic
