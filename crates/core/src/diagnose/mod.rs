@@ -179,6 +179,11 @@ pub struct EffectReport {
     /// column, and only where this model's chain differs from the one it is judged against
     /// ([`model::ModelSpec::chain_differs`]); negative where the reference refutes it.
     pub reference_evidence: Option<f64>,
+    /// Where the reference, read with this model's channel delay, refuted the model and was
+    /// read without the delay instead (a delay of the sample's deflection channel alone):
+    /// the held-out drop it gave with the delay (negative). `reference_evidence` is then the
+    /// undelayed reading's, at most 0. `None` otherwise.
+    pub reference_evidence_with_delay: Option<f64>,
     /// Why a candidate that beat every margin is not named all the same (a mode fitted
     /// beyond what the record samples, a drag fitted negative).
     pub refused: Option<&'static str>,
@@ -561,6 +566,9 @@ struct Judgement {
     sensor: Option<(f64, f64)>,
     /// Of `train_drop` and `held_drop`, what the hard reference gave ([`witness`]).
     reference: Option<(f64, f64)>,
+    /// What the hard reference gave read with the model's delay, where it refuted it and
+    /// `reference` is its reading without (a delay of the sample's channel alone).
+    reference_with_delay: Option<(f64, f64)>,
     /// Why a candidate that beat every margin is not named all the same.
     refused: Option<&'static str>,
 }
@@ -1990,24 +1998,55 @@ pub fn diagnose_observed(
         }
         .map(|(b, c)| (b.0 - c.0, b.1 - c.1));
         let (s_train, s_held) = sensor.unwrap_or((0.0, 0.0));
+        let read_reference = |base: &Fitted, cand: &Fitted| {
+            let (mut b, mut c) = (reference_chi2(base)?, reference_chi2(cand)?);
+            if let Some(n) = nominal_at_candidate(base, cand) {
+                b = (b.0.min(n.0), b.1.min(n.1));
+            }
+            let lower = |a: (f64, f64), r: Option<(f64, f64)>| {
+                r.map_or(a, |r| if r.0 < a.0 { r } else { a })
+            };
+            if chain_against_nominal(base, cand) {
+                b = lower(b, at_best_lag(&base.spec, &base.theta, &base.eval.linear));
+                let nominal_theta = cand.theta.get(..base.spec.n_nominal())?;
+                b = lower(b, at_best_lag(&base.spec, nominal_theta, &cand.eval.linear));
+                c = lower(c, at_best_lag(&cand.spec, &cand.theta, &cand.eval.linear));
+            }
+            Some((b.0 - c.0, b.1 - c.1))
+        };
+        // A delay of the sample's deflection channel alone. A reference recorded apart and
+        // aligned to the sample's run afterwards (the format promises the contact points
+        // aligned, not the channels' timing) need not share the sample channel's delay: on
+        // the second proxy's rec11 (a delay of 2.4 samples of the deflection alone, the
+        // reference undelayed) the reference refuted the delay by 4253 held-out units, and
+        // a mode at 108 Hz was named ahead of it. Where the candidate reads the reference
+        // better with its delay switched off, both models are read so; against a model
+        // without a delay the reference then gives the delay nothing, and takes nothing
+        // for the rest of the model.
+        let undelayed = |f: &Fitted| {
+            let theta = f.spec.without_delay(&f.theta)?;
+            Some(Fitted { theta, ..f.clone() })
+        };
         let reference = (base.spec.chain_differs() || cand.spec.chain_differs())
             .then(|| {
-                let (mut b, mut c) = (reference_chi2(base)?, reference_chi2(cand)?);
-                if let Some(n) = nominal_at_candidate(base, cand) {
-                    b = (b.0.min(n.0), b.1.min(n.1));
-                }
-                let lower = |a: (f64, f64), r: Option<(f64, f64)>| {
-                    r.map_or(a, |r| if r.0 < a.0 { r } else { a })
+                let delayed = read_reference(base, cand)?;
+                let Some(cand_u) = undelayed(cand) else {
+                    return Some((delayed, None));
                 };
-                if chain_against_nominal(base, cand) {
-                    b = lower(b, at_best_lag(&base.spec, &base.theta, &base.eval.linear));
-                    let nominal_theta = cand.theta.get(..base.spec.n_nominal())?;
-                    b = lower(b, at_best_lag(&base.spec, nominal_theta, &cand.eval.linear));
-                    c = lower(c, at_best_lag(&cand.spec, &cand.theta, &cand.eval.linear));
+                if reference_chi2(cand)?.0 <= reference_chi2(&cand_u)?.0 {
+                    return Some((delayed, None));
                 }
-                Some((b.0 - c.0, b.1 - c.1))
+                let base_u = undelayed(base);
+                let u = read_reference(base_u.as_ref().unwrap_or(base), &cand_u)?;
+                let u = match base_u {
+                    Some(_) => u,
+                    None => (u.0.min(0.0), u.1.min(0.0)),
+                };
+                Some((u, Some(delayed)))
             })
             .flatten();
+        let reference_with_delay = reference.and_then(|r| r.1);
+        let reference = reference.map(|r| r.0);
         let (r_train, r_held) = reference.unwrap_or((0.0, 0.0));
         let train_drop = base.eval.chi2_train - cand.eval.chi2_train + s_train + r_train;
         let held_drop = base.eval.chi2_held - cand.eval.chi2_held + s_held + r_held;
@@ -2050,6 +2089,7 @@ pub fn diagnose_observed(
             penalty,
             sensor,
             reference,
+            reference_with_delay,
         }
     };
     let limit_of = |e: Effect| limits.iter().find(|l| l.0 == e).and_then(|l| l.1.clone());
@@ -2101,6 +2141,7 @@ pub fn diagnose_observed(
             held_out_nrmse: Some(held_nrmse(&problem, f)),
             sensor_evidence: j.sensor.map(|s| s.1),
             reference_evidence: j.reference.map(|s| s.1),
+            reference_evidence_with_delay: j.reference_with_delay.map(|s| s.1),
             refused: j.refused,
             at_nothing: at_nothing.is_some(),
             outdone_by: None,
@@ -2124,6 +2165,7 @@ pub fn diagnose_observed(
         held_out_nrmse: None,
         sensor_evidence: None,
         reference_evidence: None,
+        reference_evidence_with_delay: None,
         refused: None,
         at_nothing: false,
         outdone_by: None,
@@ -2332,6 +2374,8 @@ pub fn diagnose_observed(
                                 r.held_out_nrmse = Some(held_nrmse(&problem, &f1));
                                 r.sensor_evidence = j0.sensor.map(|s| s.1);
                                 r.reference_evidence = j0.reference.map(|s| s.1);
+                                r.reference_evidence_with_delay =
+                                    j0.reference_with_delay.map(|s| s.1);
                             }
                             chosen = Some(f1);
                         }
@@ -2350,6 +2394,7 @@ pub fn diagnose_observed(
                     r.held_out_nrmse = Some(held_nrmse(&problem, &fp));
                     r.sensor_evidence = j.sensor.map(|s| s.1);
                     r.reference_evidence = j.reference.map(|s| s.1);
+                    r.reference_evidence_with_delay = j.reference_with_delay.map(|s| s.1);
                 }
                 if lead != a {
                     chosen_effects = vec![lead];
@@ -2641,6 +2686,7 @@ fn rung_by_surroundings(
             penalty,
             sensor: None,
             reference: None,
+            reference_with_delay: None,
             refused: None,
         },
     ))
@@ -5765,6 +5811,44 @@ mod tests {
     }
 
     const CUBIC_NEAR_FLOOR_PER_V2: f64 = -0.004;
+
+    /// A delay of the sample's deflection channel alone, beside a hard reference recorded
+    /// without it (a reference run aligned to the sample's afterwards): the reference, read
+    /// with the delay, refutes it, and is read without it, neither refuting nor supporting
+    /// it; the delay is named on the deflection's evidence and measured. Where the reference
+    /// shares the delay (the same channel), it is read with it and supports it.
+    #[test]
+    fn a_delay_the_reference_does_not_share_is_read_without_it() {
+        let fs = 5000.0;
+        let samples = 3.0;
+        let mut delayed = nominal_twin(34);
+        delayed.detector.delay_s = samples / fs;
+        let shared = with_reference(&delayed);
+        let mut apart = shared.clone();
+        let mut undelayed = delayed.clone();
+        undelayed.detector.delay_s = 0.0;
+        apart.reference_deflection_v = with_reference(&undelayed).reference_deflection_v;
+        let opts = corpus_options();
+        let delay_of = |d: &Diagnosis| {
+            let top = d.effects[0].clone();
+            assert!(top.significant && top.id == "channel_delay", "{top:?}");
+            let delay = top.params.iter().find(|p| p.name == "delay_s").unwrap();
+            assert!(
+                (delay.value * fs / samples - 1.0).abs() < 0.05,
+                "delay {} s vs {} s",
+                delay.value,
+                samples / fs
+            );
+            top
+        };
+        let top = delay_of(&diagnose(&apart, &opts).unwrap());
+        let with = top.reference_evidence_with_delay.expect("read without it");
+        let without = top.reference_evidence.unwrap();
+        assert!(with < -100.0 && without <= 0.0 && without > -1.0, "{top:?}");
+        let top = delay_of(&diagnose(&shared, &opts).unwrap());
+        assert_eq!(top.reference_evidence_with_delay, None, "{top:?}");
+        assert!(top.reference_evidence.unwrap() > 100.0, "{top:?}");
+    }
 
     /// A surface drift is of the sample, not the chain: the reference does not judge it, and
     /// no effect of the chain is named beside it.

@@ -1096,6 +1096,17 @@ impl ModelSpec {
         theta.get(at + 1).map(|ln_q| ln_q.exp())
     }
 
+    /// `theta` with this model's channel delay switched off (its size [`AT_NOTHING`] s), the
+    /// rest as it is; `None` where the model has no delay. A hard reference recorded apart
+    /// from the sample's run may not share the delay of the sample's deflection channel
+    /// (see `diagnose`'s judgement on the reference).
+    pub fn without_delay(&self, theta: &[f64]) -> Option<Vec<f64>> {
+        let o = self.offset_of(Effect::ChannelDelay)?;
+        let mut t = theta.to_vec();
+        *t.get_mut(o)? = AT_NOTHING.ln();
+        Some(t)
+    }
+
     /// Offset of effect `e`'s nonlinear parameters in θ.
     pub fn offset_of(&self, e: Effect) -> Option<usize> {
         let mut off = self.n_nominal();

@@ -98,6 +98,7 @@ pub fn diagnosis_json(file: &str, d: &Diagnosis, seconds: f64) -> Value {
             "held_out_nrmse": e.held_out_nrmse,
             "sensor_evidence": e.sensor_evidence,
             "reference_evidence": e.reference_evidence,
+            "reference_evidence_with_delay": e.reference_evidence_with_delay,
             "refused": e.refused,
             "at_nothing": e.at_nothing,
             "outdone_by": e.outdone_by,
@@ -433,6 +434,11 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64, reader_warnings: &[Stri
                 "    of which the hard reference (σ {:.3} mV) gave {r:.1}: this model's chain from drive to detector, read by the same drive on the reference sample",
                 sigma * 1e3
             );
+            if let Some(with) = e.reference_evidence_with_delay {
+                println!(
+                    "    (read without the delay: with it, the reference gave {with:.1}, so its own channel is not delayed; the delay is of the sample's deflection channel alone, as where the runs were aligned apart)"
+                );
+            }
         }
         for p in &e.params {
             println!(
