@@ -157,6 +157,10 @@ pub fn diagnosis_json(file: &str, d: &Diagnosis, seconds: f64) -> Value {
             "deflection_chi2_cost": l.deflection_chi2_cost,
             "delay_price": l.delay_price,
         })),
+        "sensor_lead": d.sensor_lead.as_ref().map(|l| json!({
+            "lag_s": l.lag_s,
+            "deflection_lag_s": l.deflection_lag_s,
+        })),
         "reference_sigma_v": d.reference_sigma_v,
         "reference_contact_offset_nm": d.reference_contact_offset_nm,
         "channel_notes": d.channel_notes,
@@ -358,6 +362,13 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64, reader_warnings: &[Stri
         };
         println!(
             "height sensor (measured_height_nm, σ {sigma:.3} nm): the stage lags the drive by {:.2}{sd} µs, less than the {:.2} µs the nominal twin's actuator took from the deflection{cost}",
+            l.lag_s * 1e6,
+            l.deflection_lag_s * 1e6
+        );
+    }
+    if let (Some(l), Some(sigma)) = (&d.sensor_lead, d.sensor_sigma_nm) {
+        println!(
+            "height sensor (measured_height_nm, σ {sigma:.3} nm): the stage lags the drive by {:.2} µs, more than the {:.2} µs the nominal twin's actuator took from the deflection: something in the deflection leads the stage (a drag's force leads the motion), and hydrodynamic_drag was refitted from the sensor's lag too",
             l.lag_s * 1e6,
             l.deflection_lag_s * 1e6
         );
