@@ -4588,6 +4588,23 @@ mod tests {
         rec
     }
 
+    /// The corpus protocol's drive at [`SENSED_FS_HZ`], and what a stage passes that lags it
+    /// by `lag_s` in the nominal actuator's own form (damping `q`): the twin is driven with
+    /// the second, the recording keeps the first (see [`sensed`]).
+    fn through_lagging_stage(lag_s: f64, q: f64) -> (Vec<f64>, std::sync::Arc<Vec<f64>>) {
+        use crate::twin::{actuator::ResonantMode, dynamics::InputHold};
+        let (drive_v, _) = protocol_drive(SENSED_FS_HZ);
+        let mode = ResonantMode {
+            freq_hz: 1.0 / (2.0 * std::f64::consts::PI * q * lag_s),
+            q,
+            input: InputHold::Ramped,
+            peak_gain: None,
+            fraction: None,
+        };
+        let stage_v = super::model::DriveSpectrum::new(&drive_v).through(&mode, SENSED_FS_HZ);
+        (drive_v, stage_v)
+    }
+
     /// The corpus's nominal twin of `seed` with a single-term piezo creep of `fraction` and
     /// 0.5 s.
     fn creeping_twin(seed: u64, fraction: f64) -> TwinConfig {
@@ -4635,22 +4652,11 @@ mod tests {
     /// names the delay, with an interval about the truth.
     #[test]
     fn a_height_sensor_names_a_delay_the_lag_took_up() {
-        use crate::twin::{actuator::ResonantMode, dynamics::InputHold};
         let fs = SENSED_FS_HZ;
         let (truth_s, stage_lag_s, q) = (0.2 / fs, 0.5 / fs, 0.5);
         let mut twin = nominal_twin(22);
         twin.detector.delay_s = truth_s;
-        // The stage's lag in the nominal actuator's own form: the twin is driven with the
-        // drive it passed, the recording keeps the drive sent.
-        let (drive_v, _) = protocol_drive(fs);
-        let mode = ResonantMode {
-            freq_hz: 1.0 / (2.0 * std::f64::consts::PI * q * stage_lag_s),
-            q,
-            input: InputHold::Ramped,
-            peak_gain: None,
-            fraction: None,
-        };
-        let stage_v = super::model::DriveSpectrum::new(&drive_v).through(&mode, fs);
+        let (drive_v, stage_v) = through_lagging_stage(stage_lag_s, q);
         let opts = corpus_options();
         let alone = diagnose(&sensed(&twin, &stage_v, &drive_v, None), &opts).unwrap();
         assert_eq!(alone.verdict, Verdict::None, "{:?}", alone.effects[0]);
@@ -4723,22 +4729,14 @@ mod tests {
     /// docs/diagnose-json.md. What this test pins is the sensor's reading.)
     #[test]
     fn a_height_sensor_reads_the_lag_a_drag_cancelled() {
-        use crate::twin::{actuator::ResonantMode, dynamics::InputHold, Drag};
+        use crate::twin::Drag;
         let fs = SENSED_FS_HZ;
         let (stage_lag_s, q, drag) = (0.4 / fs, 0.66, 3e-5);
         let mut twin = nominal_twin(24);
         twin.drag = Some(Drag {
             coefficient_nn_s_per_nm: drag,
         });
-        let (drive_v, _) = protocol_drive(fs);
-        let mode = ResonantMode {
-            freq_hz: 1.0 / (2.0 * std::f64::consts::PI * q * stage_lag_s),
-            q,
-            input: InputHold::Ramped,
-            peak_gain: None,
-            fraction: None,
-        };
-        let stage_v = super::model::DriveSpectrum::new(&drive_v).through(&mode, fs);
+        let (drive_v, stage_v) = through_lagging_stage(stage_lag_s, q);
         let rec = sensed(&twin, &stage_v, &drive_v, Some(0.05));
         let seen = diagnose(&rec, &corpus_options()).unwrap();
         assert_eq!(seen.before.actuator.q, None, "{:?}", seen.before);
