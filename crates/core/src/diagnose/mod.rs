@@ -5937,18 +5937,7 @@ mod tests {
         undelayed.detector.delay_s = 0.0;
         apart.reference_deflection_v = with_reference(&undelayed).reference_deflection_v;
         let opts = corpus_options();
-        let delay_of = |d: &Diagnosis| {
-            let top = d.effects[0].clone();
-            assert!(top.significant && top.id == "channel_delay", "{top:?}");
-            let delay = top.params.iter().find(|p| p.name == "delay_s").unwrap();
-            assert!(
-                (delay.value * fs / samples - 1.0).abs() < 0.05,
-                "delay {} s vs {} s",
-                delay.value,
-                samples / fs
-            );
-            top
-        };
+        let delay_of = |d: &Diagnosis| named_delay(d, samples / fs, 0.05).clone();
         let top = delay_of(&diagnose(&apart, &opts).unwrap());
         let with = top.reference_evidence_with_delay.expect("read without it");
         let without = top.reference_evidence.unwrap();
@@ -6136,16 +6125,22 @@ mod tests {
         let mut twin = nominal_twin(14);
         twin.detector.delay_s = samples / fs;
         let d = diagnosed(&twin, fs);
+        named_delay(&d, samples / fs, 0.02);
+        assert!(d.after.held_out_chi2_per_sample < 1.1, "{:?}", d.after);
+    }
+
+    /// The top effect of `d`, asserted a significant `channel_delay` whose `delay_s` is within
+    /// `tolerance` (relative) of `truth_s`.
+    fn named_delay(d: &Diagnosis, truth_s: f64, tolerance: f64) -> &super::EffectReport {
         let top = &d.effects[0];
         assert!(top.significant && top.id == "channel_delay", "{top:?}");
         let delay = top.params.iter().find(|p| p.name == "delay_s").unwrap();
         assert!(
-            (delay.value * fs / samples - 1.0).abs() < 0.02,
-            "delay {} s vs {} s",
-            delay.value,
-            samples / fs
+            (delay.value / truth_s - 1.0).abs() < tolerance,
+            "delay {} s vs {truth_s} s",
+            delay.value
         );
-        assert!(d.after.held_out_chi2_per_sample < 1.1, "{:?}", d.after);
+        top
     }
 
     /// A drift near the floor moves the NRMSE by a few per cent; what the report says against
