@@ -64,8 +64,8 @@ use fit::{
 use limit::DetectionLimit;
 use locate::{Location, Phase};
 use model::{
-    AdhesionForm, Effect, ModelSpec, Problem, ResonanceForm, TipForm, DEFAULT_NOMINAL_TERMS,
-    MAX_NOMINAL_TERMS,
+    AdhesionForm, DriveReading, Effect, ModelSpec, Problem, ResonanceForm, TipForm,
+    DEFAULT_NOMINAL_TERMS, MAX_NOMINAL_TERMS,
 };
 
 /// Where a peaking resonance's gain starts: a peak of twice the motion, between a mode
@@ -342,6 +342,9 @@ pub struct Diagnosis {
     pub simulations: Simulations,
     pub base_position: BasePosition,
     pub weighting: Weighting,
+    /// How the nominal twin read the drive between its samples ([`DriveReading`]): the
+    /// band-limited signal they describe, or straight lines where that fitted better.
+    pub drive_reading: DriveReading,
     /// Other effects that explain the residual all but as well as the top one, each
     /// significant on its own: this recording cannot tell them apart ([`LookAlike`]).
     pub look_alikes: Vec<LookAlike>,
@@ -1110,6 +1113,7 @@ pub fn diagnose_observed(
         floor_rises_at_bottom: noise.rises_at_low_frequency(fs),
         fixed_columns: Default::default(),
         drive_spectrum: Default::default(),
+        drive_reading: DriveReading::BandLimited,
         simulations: Default::default(),
         tip_reference_depth_nm: 0.0,
         wander_span_s: (0.0, 0.0),
@@ -1341,6 +1345,22 @@ pub fn diagnose_observed(
         (every_sample(&f) < every_sample(nom)).then_some(f)
     };
     let mut nom = fit_nominal(&problem)?;
+    // How the drive runs between its samples is not recorded (`DriveReading`): the nominal
+    // twin is fitted again with the drive read as straight lines between them, from where
+    // the band-limited fit ended and from the first start, and that reading stands where it
+    // fits better by one parameter's BIC price (a choice of two is at most one parameter's
+    // worth). Everything after, the candidates' refits among it, reads the drive so.
+    let moded = |th: &[f64]| problem.has_actuator_mode(&nominal, th);
+    if moded(&nom.theta) || moded(&starts[0]) {
+        problem.drive_reading = DriveReading::Linear;
+        let from = [nom.theta.clone(), starts[0].clone()];
+        let linear = fit_model(&problem, &nominal, &from, nominal_opts, fan)
+            .map(|f| with_damping_moved(&problem, polished(&problem, f)));
+        match linear {
+            Some(f) if f.eval.chi2_train < nom.eval.chi2_train - n_tr.ln() => nom = f,
+            _ => problem.drive_reading = DriveReading::BandLimited,
+        }
+    }
     // Spikes off the nominal twin, with its residual about them at the floor (`spikes`), are
     // left out of every χ² as a pinned sample is, and the nominal twin fitted again without
     // them. (The train count the floor tests read above stays the spikes' few samples high:
@@ -2625,6 +2645,7 @@ pub fn diagnose_observed(
         simulations,
         base_position,
         weighting: problem.weighting(),
+        drive_reading: problem.drive_reading,
         look_alikes,
         sensor_sigma_nm: witness.as_ref().map(|w| w.sigma_nm),
         sensor_lag: sensor_lag_reading,
@@ -5681,6 +5702,33 @@ mod tests {
             "{:#?}",
             d.effects
         );
+    }
+
+    /// A stage whose input the twin ramps from sample to sample (a mode of Q 0.7 lagging half
+    /// a sample, `InputHold::Ramped`: what a DAC or a simulator that interpolates linearly
+    /// gives) is read so by the nominal twin (`DriveReading::Linear`), and the null record
+    /// names nothing. Read band-limited only, that stage's gain in the upper band is what a
+    /// roll-off or peaking mode near the Nyquist frequency takes up: the third proxy
+    /// (`tools/blind-sim3`) had one named on two of its six nulls. An ideal stage, which
+    /// passes the drive as recorded however it is read, stays band-limited.
+    #[test]
+    fn a_stage_ramped_between_samples_is_read_so_and_names_nothing() {
+        use crate::twin::actuator::ResonantMode;
+        use crate::twin::dynamics::InputHold;
+        let (drive_v, _) = protocol_drive(FS_HZ);
+        let (lag_s, q) = (0.5 / FS_HZ, 0.7);
+        let mut twin = nominal_twin(5);
+        twin.actuator.modes = vec![ResonantMode {
+            input: InputHold::Ramped,
+            ..ResonantMode::held(1.0 / (2.0 * std::f64::consts::PI * q * lag_s), q)
+        }];
+        let d = diagnose(&simulate(&twin, &drive_v, FS_HZ, None), &corpus_options()).unwrap();
+        assert_eq!(d.drive_reading, super::DriveReading::Linear);
+        let named: Vec<_> = d.effects.iter().filter(|e| e.significant).collect();
+        assert!(named.is_empty(), "{named:#?}");
+        let ideal = nominal_twin(5);
+        let d = diagnose(&simulate(&ideal, &drive_v, FS_HZ, None), &corpus_options()).unwrap();
+        assert_eq!(d.drive_reading, super::DriveReading::BandLimited);
     }
 
     /// A structure no catalog effect makes (a burst at 330 Hz, three floors high at its

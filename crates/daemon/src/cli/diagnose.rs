@@ -13,7 +13,7 @@ use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
 use viscoprobe_core::diagnose::bench::{score, CaseOutcome, Score};
 use viscoprobe_core::diagnose::corpus::{concealed_corpus_with, CorpusCase, MATERIAL_TERMS};
-use viscoprobe_core::diagnose::model::{DEFAULT_NOMINAL_TERMS, MAX_NOMINAL_TERMS};
+use viscoprobe_core::diagnose::model::{DriveReading, DEFAULT_NOMINAL_TERMS, MAX_NOMINAL_TERMS};
 use viscoprobe_core::diagnose::{
     diagnose_observed, diagnose_with, locate::Domain, BasePosition, DiagnoseOptions, Diagnosis,
     EffectReport, FitSummary, Param, Progress, Weighting,
@@ -169,6 +169,7 @@ pub fn diagnosis_json(file: &str, d: &Diagnosis, seconds: f64) -> Value {
             "why": b.why,
         })).collect::<Vec<_>>(),
         "weighting": d.weighting.id(),
+        "drive_reading": d.drive_reading.id(),
         "cost": {
             "simulations": d.simulations.total(),
             "simulations_by_stage": {
@@ -320,6 +321,13 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64, reader_warnings: &[Stri
             Weighting::Equal => "equally (the floor is white)",
         }
     );
+    if d.drive_reading == DriveReading::Linear {
+        println!(
+            "drive: read as straight lines between its samples (a DAC or simulator that ramps \
+             from sample to sample), which the nominal twin fitted better than the band-limited \
+             signal they describe"
+        );
+    }
     for note in &d.channel_notes {
         println!("channel: {note}");
     }
