@@ -1349,9 +1349,14 @@ pub fn diagnose_observed(
     // twin is fitted again with the drive read as straight lines between them, from where
     // the band-limited fit ended and from the first start, and that reading stands where it
     // fits better by one parameter's BIC price (a choice of two is at most one parameter's
-    // worth). Everything after, the candidates' refits among it, reads the drive so.
+    // worth). Everything after, the candidates' refits among it, reads the drive so. Not
+    // where the nominal misfit is gross (`GROSS_MISFIT`): there a price of ln N χ² units says
+    // nothing, and the reading would be chosen by structure the drive's interpolation has no
+    // part in (the shared JPK gel, whose retract misfits by 5·10⁴ per sample, went linear and
+    // named a detector's curvature beside its adhesion in place of the drag).
     let moded = |th: &[f64]| problem.has_actuator_mode(&nominal, th);
-    if moded(&nom.theta) || moded(&starts[0]) {
+    let gross_at_first = nom.eval.chi2_train / n_tr > GROSS_MISFIT;
+    if !gross_at_first && (moded(&nom.theta) || moded(&starts[0])) {
         problem.drive_reading = DriveReading::Linear;
         let from = [nom.theta.clone(), starts[0].clone()];
         let linear = fit_model(&problem, &nominal, &from, nominal_opts, fan)
