@@ -631,7 +631,7 @@ type ModeKey = (u64, u64, u64, DriveReading);
 /// of the upper band (a fifth of a sample's lag: 4 % of a 1 kHz line at 8 kHz), which the
 /// nominal actuator cannot mimic with its lag and damping: an independent simulator that
 /// ramps its drive (the third proxy, `tools/blind-sim3`) had a roll-off or peaking
-/// `instrument_resonance` named on 16 of its 46 records, two of them nulls, each mode near
+/// `instrument_resonance` named on 15 of its 46 records that hold no mode, two of them nulls, each near
 /// the Nyquist frequency taking up the difference, and the nominal fits' damping sat at its
 /// bound. The nominal fit reads the drive both ways (`diagnose`), band-limited first.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
