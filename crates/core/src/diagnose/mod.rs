@@ -1344,6 +1344,9 @@ pub fn diagnose_observed(
         let every_sample = |f: &Fitted| f.eval.chi2_train + f.eval.chi2_held;
         (every_sample(&f) < every_sample(nom)).then_some(f)
     };
+    // A nominal twin hundreds of times above the floor misfits by structure no noise model
+    // or price of a few χ² units speaks for (see the equal weighting below).
+    let gross = |f: &Fitted| f.eval.chi2_train / n_tr > GROSS_MISFIT;
     let mut nom = fit_nominal(&problem)?;
     // How the drive runs between its samples is not recorded (`DriveReading`): the nominal
     // twin is fitted again with the drive read as straight lines between them, from where
@@ -1355,8 +1358,7 @@ pub fn diagnose_observed(
     // part in (the shared JPK gel, whose retract misfits by 5·10⁴ per sample, went linear and
     // named a detector's curvature beside its adhesion in place of the drag).
     let moded = |th: &[f64]| problem.has_actuator_mode(&nominal, th);
-    let gross_at_first = nom.eval.chi2_train / n_tr > GROSS_MISFIT;
-    if !gross_at_first && (moded(&nom.theta) || moded(&starts[0])) {
+    if !gross(&nom) && (moded(&nom.theta) || moded(&starts[0])) {
         problem.drive_reading = DriveReading::Linear;
         let from = [nom.theta.clone(), starts[0].clone()];
         let linear = fit_model(&problem, &nominal, &from, nominal_opts, fan)
@@ -1388,8 +1390,7 @@ pub fn diagnose_observed(
     // a differentiator where the free lever drifts — would hide every level and plateau of
     // that misfit: on the shared JPK gel the long adhesive pull of the retract counted for
     // less than the edges around it. Such a recording is weighted equally instead.
-    let gross = nom.eval.chi2_train / n_tr > GROSS_MISFIT;
-    if gross && problem.weighting() == Weighting::Whitened {
+    if gross(&nom) && problem.weighting() == Weighting::Whitened {
         problem.weigh_equally(noise.sigma_v);
         nom = fit_nominal(&problem)?;
     }

@@ -575,14 +575,17 @@ pub(crate) fn nominal_actuator_mode(
     })
 }
 
-/// The drive's spectrum, for the nominal actuator's mode to act on the drive as the band-limited
-/// signal its samples describe (`DriveSpectrum::through`): the mode's response
-/// `1/(1 + s/(ω0·Q) + s²/ω0²)` applied line by line to the drive's spectrum. A smooth command
-/// between samples is what a drive is (a DAC's reconstruction filter, a stage controller's
-/// set-point interpolation, a simulator's continuous protocol); ramping it between samples
-/// instead (a first-order hold) loses 4 % of a 1 kHz line's amplitude at 8 kHz behind a fifth of a sample's lag, which the fit could only mimic
-/// by raising the mode's Q to its bound, and the remainder was then named `hydrodynamic_drag` or
-/// `instrument_resonance` on null records of an independent simulator. The straight line between
+/// The drive's spectrum, for the nominal actuator's mode to act on the drive
+/// (`DriveSpectrum::read_through`): the mode's response applied line by line to the drive's
+/// spectrum, `1/(1 + s/(ω0·Q) + s²/ω0²)` for the band-limited signal the samples describe,
+/// or the mode's triangle-hold equivalent for straight lines between them ([`DriveReading`],
+/// [`RampedMode`]). Band-limited is read first: a smooth command between samples is what
+/// most drives are (a DAC's reconstruction filter, a stage controller's set-point
+/// interpolation, a simulator's continuous protocol), and when the twin read every drive as
+/// ramped, the loss of 4 % of a 1 kHz line's amplitude at 8 kHz behind a fifth of a sample's
+/// lag was mimicked by the mode's Q at its bound, and the remainder named
+/// `hydrodynamic_drag` or `instrument_resonance` on null records of an independent
+/// simulator. The straight line between
 /// the first and last samples is taken out first and put back lagged (`a1·slope`), so the record's
 /// two ends, both at rest, meet without a step when the spectrum wraps. Applied to the drive before
 /// the twin's hysteresis and creep rather than after them: for a lag of a fraction of a sample the
@@ -618,8 +621,8 @@ impl std::ops::Deref for TwinDrive<'_> {
     }
 }
 
-/// A mode as [`DriveSpectrum::through`] reads it, with the sample rate and the drive's
-/// reading: to the bit.
+/// A mode as [`DriveSpectrum::read_through`] reads it, with the sample rate and the
+/// drive's reading: to the bit.
 type ModeKey = (u64, u64, u64, DriveReading);
 
 /// How the drive runs between its samples, which a recording does not say. A smooth
@@ -631,9 +634,10 @@ type ModeKey = (u64, u64, u64, DriveReading);
 /// of the upper band (a fifth of a sample's lag: 4 % of a 1 kHz line at 8 kHz), which the
 /// nominal actuator cannot mimic with its lag and damping: an independent simulator that
 /// ramps its drive (the third proxy, `tools/blind-sim3`) had a roll-off or peaking
-/// `instrument_resonance` named on 15 of its 46 records that hold no mode, two of them nulls, each near
-/// the Nyquist frequency taking up the difference, and the nominal fits' damping sat at its
-/// bound. The nominal fit reads the drive both ways (`diagnose`), band-limited first.
+/// `instrument_resonance` named on 15 of its 46 records that hold no mode, two of them
+/// nulls, each near the Nyquist frequency taking up the difference, and the nominal fits'
+/// damping sat at its bound. The nominal fit reads the drive both ways (`diagnose`),
+/// band-limited first.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
 pub enum DriveReading {
     /// The band-limited signal the samples describe.
@@ -660,6 +664,14 @@ const FILTERED_KEPT: usize = 32;
 
 /// The most memory the kept drives may take: a long record keeps fewer of them.
 const FILTERED_BYTES: usize = 64 << 20;
+
+/// The nominal actuator's mode `1/(1 + s/(ω0·Q) + s²/ω0²)` at `f_hz`: what it does to a
+/// band-limited drive, line by line.
+fn mode_response(mode: &ResonantMode, f_hz: f64) -> rustfft::num_complex::Complex<f64> {
+    let w0 = 2.0 * std::f64::consts::PI * mode.freq_hz;
+    let s = rustfft::num_complex::Complex::new(0.0, 2.0 * std::f64::consts::PI * f_hz);
+    1.0 / (1.0 + s / (w0 * mode.q) + s * s / (w0 * w0))
+}
 
 /// The nominal actuator's mode `1/(1 + s/(ω0·Q) + s²/ω0²)` driven by the straight lines
 /// between the drive's samples, as the samples of its output see it: the mode's
@@ -757,7 +769,14 @@ impl DriveSpectrum {
         }
     }
 
-    /// The drive through `mode`, at `fs_hz`.
+    /// The drive through `mode`, at `fs_hz`, read band-limited: the tests' shorthand for
+    /// [`Self::read_through`].
+    #[cfg(test)]
+    pub(crate) fn through(&self, mode: &ResonantMode, fs_hz: f64) -> std::sync::Arc<Vec<f64>> {
+        self.read_through(mode, fs_hz, DriveReading::BandLimited)
+    }
+
+    /// The drive through `mode`, at `fs_hz`, read between its samples as `reading` says.
     ///
     /// Kept for the modes met last ([`filtered_kept`]), and handed out again for the same
     /// mode to the bit: the same arithmetic on the same numbers, so every simulation reads
@@ -769,12 +788,6 @@ impl DriveSpectrum {
     /// binary when the machine was slower, 63.3 s to 58.2 s (wall 35.1 s to 32.6 s); the
     /// concealed corpus's seed 1 from 566 s to 484 s summed over its 21 cases, its report
     /// identical but for the times.
-    #[cfg(test)]
-    pub(crate) fn through(&self, mode: &ResonantMode, fs_hz: f64) -> std::sync::Arc<Vec<f64>> {
-        self.read_through(mode, fs_hz, DriveReading::BandLimited)
-    }
-
-    /// [`Self::through`] with the drive read as `reading` says between its samples.
     pub(crate) fn read_through(
         &self,
         mode: &ResonantMode,
@@ -827,10 +840,8 @@ impl DriveSpectrum {
                 } else {
                     k as f64 - n as f64
                 };
-                let f = line * fs_hz / n as f64;
-                let s = Complex::new(0.0, 2.0 * std::f64::consts::PI * f);
                 let mut h = match &ramped {
-                    None => 1.0 / (1.0 + s / (w0 * mode.q) + s * s / (w0 * w0)),
+                    None => mode_response(mode, line * fs_hz / n as f64),
                     Some(r) => r.response(2.0 * std::f64::consts::PI * line / n as f64),
                 };
                 if 2 * k == n {
@@ -1380,13 +1391,13 @@ impl Problem {
         }
     }
 
-    /// The nominal actuator's mode at θ (see [`nominal_actuator_mode`]).
     /// Whether θ gives the nominal actuator a mode, which the drive then passes through
     /// (an ideal stage passes it as recorded, however it is read between samples).
     pub fn has_actuator_mode(&self, spec: &ModelSpec, th: &[f64]) -> bool {
         self.actuator_mode(spec, th).is_some()
     }
 
+    /// The nominal actuator's mode at θ (see [`nominal_actuator_mode`]).
     fn actuator_mode(&self, spec: &ModelSpec, th: &[f64]) -> Option<ResonantMode> {
         let lag = spec.actuator_lag();
         nominal_actuator_mode(th[lag], th[lag + 1], self.fs_hz)
@@ -2470,11 +2481,6 @@ mod tests {
         for lag_samples in [0.2, 2.0] {
             for q_phase in [0.0, 0.9, 1.128, ACTUATOR_Q_START, std::f64::consts::PI] {
                 let mode = nominal_actuator_mode(lag_samples, q_phase, fs).unwrap();
-                let w0 = 2.0 * std::f64::consts::PI * mode.freq_hz;
-                let continuous = |w: f64| {
-                    let s = Complex::new(0.0, w);
-                    1.0 / (1.0 + s / (w0 * mode.q) + s * s / (w0 * w0))
-                };
                 let ramped = RampedMode::new(&mode, fs);
                 for share in [0.05, 0.2, 0.45] {
                     let theta = 2.0 * std::f64::consts::PI * share;
@@ -2485,7 +2491,7 @@ mod tests {
                     let aliases: Complex<f64> = (-20_000..=20_000)
                         .map(|k: i32| {
                             let x = share + f64::from(k);
-                            continuous(2.0 * std::f64::consts::PI * fs * x) * sinc2(x)
+                            mode_response(&mode, fs * x) * sinc2(x)
                         })
                         .sum();
                     let closed = ramped.response(theta);
@@ -2504,9 +2510,7 @@ mod tests {
         let mode = nominal_actuator_mode(0.2, ACTUATOR_Q_START, 8000.0).unwrap();
         let theta = 2.0 * std::f64::consts::PI / 8.0;
         let loss = 1.0 - RampedMode::new(&mode, 8000.0).response(theta).norm();
-        let w0 = 2.0 * std::f64::consts::PI * mode.freq_hz;
-        let s = Complex::new(0.0, 2.0 * std::f64::consts::PI * 1000.0);
-        let band_limited = 1.0 - (1.0 / (1.0 + s / (w0 * mode.q) + s * s / (w0 * w0))).norm();
+        let band_limited = 1.0 - mode_response(&mode, 1000.0).norm();
         assert!(
             loss - band_limited > 0.02 && loss - band_limited < 0.06,
             "{loss} {band_limited}"
