@@ -1718,8 +1718,15 @@ pub fn diagnose_observed(
             // was a creep's (the concealed corpus's creep beside a detector's curvature,
             // seed 1, named a drift beside the curvature) or the part a pair's partner
             // leaves. Where it stands, the drift's best other form is its stand-in in a pair.
+            // A mode's partial form carrying more than the whole motion is not a form it may
+            // stand on (`mode_carries_more_than_the_motion`): its best other form stands.
+            // Refused only when judged, it took the mode down with it: the concealed corpus's
+            // mode beside a third term (seed 3; 1080.8 Hz, Q 5.73, the whole motion) came out
+            // partial at κ 1.20 (95 % 1.18–1.22) and a drag was named in its place.
             let by_bic = |a: &&Fitted, b: &&Fitted| bic(a).total_cmp(&bic(b));
-            let fixed = fits.iter().filter(|f| !f.spec.wanders()).min_by(by_bic);
+            let fixed = (fits.iter())
+                .filter(|f| !f.spec.wanders() && !mode_carries_more_than_the_motion(&problem, f))
+                .min_by(by_bic);
             let wander =
                 (fits.iter().min_by(by_bic)).filter(|f| f.spec.wanders() && train_at_floor(f));
             let (best, plain) = match wander {
@@ -3629,8 +3636,10 @@ fn params_of(problem: &Problem, f: &Fitted, e: Effect) -> Vec<Param> {
 }
 
 /// Why a fit `f` is not physics the record shows, however well it fits: a mode above the
-/// sampling rate ([`mode_beyond_band`]) or a drag along the motion ([`drag_along_motion`]);
-/// `None` where it may be named.
+/// sampling rate ([`mode_beyond_band`]), one narrower than the record
+/// ([`mode_rings_past_record`]), a drag along the motion ([`drag_along_motion`]) or a mode
+/// carrying more than the motion ([`mode_carries_more_than_the_motion`]); `None` where it
+/// may be named.
 fn refusal(problem: &Problem, f: &Fitted) -> Option<&'static str> {
     if mode_beyond_band(&f.spec, &f.theta, problem.fs_hz) {
         Some(MODE_BEYOND_BAND)
@@ -3638,6 +3647,8 @@ fn refusal(problem: &Problem, f: &Fitted) -> Option<&'static str> {
         Some(MODE_RINGS_PAST_RECORD)
     } else if drag_along_motion(problem, f) {
         Some(DRAG_ALONG_MOTION)
+    } else if mode_carries_more_than_the_motion(problem, f) {
+        Some(MODE_CARRIES_MORE_THAN_THE_MOTION)
     } else {
         None
     }
@@ -3687,6 +3698,23 @@ fn drag_along_motion(problem: &Problem, f: &Fitted) -> bool {
             .any(|p| p.ci95[1] < 0.0)
 }
 
+/// Whether `f` has a partial mode ([`ResonanceForm::Partial`]) whose whole 95 % interval
+/// of its fraction κ lies above 1: more than the whole motion riding on the mode, and the
+/// rest, `1 − κ`, passing straight through reversed. No mount under part of a stage does
+/// that. Such a form has a zero in the right half-plane, `(1 − κ)s² + (1 − κ)(ω0/Q)s + ω0²`
+/// with `1 − κ < 0`: its phase lags on toward high frequency as a delay's does, and its
+/// column takes up a delay. On the third proxy's one-sample channel delay (rec15, 20 µs at
+/// 50 kHz), a mode of κ 1.78 (95 % 1.65–1.92) at 9.97 kHz, Q 0.61, was named 21 held-out
+/// units ahead of the delay itself (2026-12-02). Such a fit is neither the form a mode's
+/// refit stands on nor named in a pair ([`refusal`]).
+fn mode_carries_more_than_the_motion(problem: &Problem, f: &Fitted) -> bool {
+    f.spec.has(Effect::InstrumentResonance)
+        && f.spec.resonance == ResonanceForm::Partial
+        && params_of(problem, f, Effect::InstrumentResonance)
+            .iter()
+            .any(|p| p.name == "fraction" && p.ci95[0] > 1.0)
+}
+
 /// How many times the floor's noise exceeds what the whitening assumes along the whitened
 /// signature `whitened` (a refit's change of the deflection's residual, a limit's
 /// signature), once the floor's 1/f rise is continued below the band it was measured on
@@ -3708,6 +3736,11 @@ const LOW_BAND_FLOOR: &str =
 const DRAG_ALONG_MOTION: &str =
     "its drag came out negative, a force along the motion that no fluid exerts: the drag's \
      term took up something else that leads the motion";
+
+/// What the report says of a mode [`mode_carries_more_than_the_motion`] refused.
+const MODE_CARRIES_MORE_THAN_THE_MOTION: &str =
+    "its mode came out carrying more than the whole motion, the rest passing through \
+     reversed, which no mount does: its phase lags on as a delay's does, and it took up one";
 
 /// What the report says of a mode [`mode_rings_past_record`] refused.
 const MODE_RINGS_PAST_RECORD: &str =
@@ -5672,6 +5705,28 @@ mod tests {
         assert_eq!(drag.refused, Some(super::DRAG_ALONG_MOTION));
         let c = &drag.params[0];
         assert!(c.ci95[1] < 0.0, "{c:?}");
+    }
+
+    /// A mode under "part" of the stage that carries more than the whole motion (κ 1.8 at
+    /// 800 Hz, Q 0.6, the rest passing through reversed: a zero in the right half-plane, a
+    /// delay's look-alike) is never the form a mode's refit stands on, and is not named.
+    /// At 9f5f8b3 it was named in that form (evidence 5546, a delay's 5386). Now the mode
+    /// stands in its best other form (a roll-off at 1048 Hz, Q 4.2), 351 held-out units
+    /// behind a delay (2026-12-02).
+    #[test]
+    fn a_mode_carrying_more_than_the_motion_is_not_its_form() {
+        let mut twin = nominal_twin(37);
+        twin.actuator.modes = vec![crate::twin::actuator::ResonantMode::partial(
+            800.0, 0.6, 1.8,
+        )];
+        let d = diagnosed(&twin, FS_HZ);
+        let mode = d
+            .effects
+            .iter()
+            .find(|e| e.id == "instrument_resonance")
+            .unwrap();
+        assert!(!mode.significant, "{mode:?}");
+        assert!(mode.params.iter().all(|p| p.name != "fraction"), "{mode:?}");
     }
 
     /// A null under 1/f noise that goes on below the free lever's window (shaped from the
