@@ -5710,9 +5710,10 @@ mod tests {
     /// A mode under "part" of the stage that carries more than the whole motion (κ 1.8 at
     /// 800 Hz, Q 0.6, the rest passing through reversed: a zero in the right half-plane, a
     /// delay's look-alike) is never the form a mode's refit stands on, and is not named.
-    /// At 9f5f8b3 it was named in that form (evidence 5546, a delay's 5386). Now the mode
-    /// stands in its best other form (a roll-off at 1048 Hz, Q 4.2), 351 held-out units
-    /// behind a delay (2026-12-02).
+    /// In that form it beats every margin ahead of a delay (evidence 5546 against 5386,
+    /// measured with the fit refused only when judged), so before this rule it was what
+    /// would be named. Now the mode stands in its best other form (a roll-off at 1048 Hz,
+    /// Q 4.2), 351 held-out units behind a delay (2026-12-02).
     #[test]
     fn a_mode_carrying_more_than_the_motion_is_not_its_form() {
         let mut twin = nominal_twin(37);
