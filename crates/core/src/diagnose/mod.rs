@@ -453,6 +453,12 @@ impl Diagnosis {
             .map(|e| e.id)
             .collect()
     }
+
+    /// The report of the catalog effect `id`, named or not; `None` for an id the catalog
+    /// does not have.
+    pub fn effect(&self, id: &str) -> Option<&EffectReport> {
+        self.effects.iter().find(|e| e.id == id)
+    }
 }
 
 /// A height sensor's reading of the stage's lag beyond the nominal fit's: the stage lags the
@@ -4729,9 +4735,7 @@ mod tests {
         assert_eq!(spot.id, "channel_delay");
         // The bound is the delay's detection limit: above the truth, which went unnamed.
         let limit = alone
-            .effects
-            .iter()
-            .find(|e| e.id == "channel_delay")
+            .effect("channel_delay")
             .and_then(|e| e.detection_limit.clone())
             .expect("a delay's limit");
         assert!(limit.value > truth_s, "{limit:?}");
@@ -4831,7 +4835,7 @@ mod tests {
         let twin = nominal_twin(23);
         let clean = diagnosed(&twin, 2000.0);
         let limit = |id: &str| {
-            let e = clean.effects.iter().find(|e| e.id == id).unwrap();
+            let e = clean.effect(id).unwrap();
             e.detection_limit
                 .clone()
                 .unwrap_or_else(|| panic!("no limit: {e:?}"))
@@ -5004,7 +5008,7 @@ mod tests {
         let top = &d.effects[0];
         assert!(top.significant && top.id == "thermal_drift", "{top:?}");
         assert_eq!(top.sensor_evidence, None);
-        let creep = d.effects.iter().find(|e| e.id == "piezo_creep").unwrap();
+        let creep = d.effect("piezo_creep").unwrap();
         assert!(!creep.significant);
         if let Some(s) = creep.sensor_evidence {
             assert!(s < 0.0, "{creep:?}");
@@ -5696,11 +5700,7 @@ mod tests {
             coefficient_nn_s_per_nm: -2e-5,
         });
         let d = diagnosed(&twin, FS_HZ);
-        let drag = d
-            .effects
-            .iter()
-            .find(|e| e.id == "hydrodynamic_drag")
-            .unwrap();
+        let drag = d.effect("hydrodynamic_drag").unwrap();
         assert!(!drag.significant, "{drag:?}");
         assert_eq!(drag.refused, Some(super::DRAG_ALONG_MOTION));
         let c = &drag.params[0];
@@ -5721,11 +5721,7 @@ mod tests {
             800.0, 0.6, 1.8,
         )];
         let d = diagnosed(&twin, FS_HZ);
-        let mode = d
-            .effects
-            .iter()
-            .find(|e| e.id == "instrument_resonance")
-            .unwrap();
+        let mode = d.effect("instrument_resonance").unwrap();
         assert!(!mode.significant, "{mode:?}");
         assert!(mode.params.iter().all(|p| p.name != "fraction"), "{mode:?}");
     }
@@ -5991,9 +5987,7 @@ mod tests {
             diagnose(&without, &opts).unwrap(),
         );
         let nonlinearity = |d: &Diagnosis| {
-            d.effects
-                .iter()
-                .find(|e| e.id == "detector_nonlinearity")
+            d.effect("detector_nonlinearity")
                 .cloned()
                 .expect("the nonlinearity is a candidate")
         };
