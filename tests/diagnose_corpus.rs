@@ -121,7 +121,15 @@ fn concealed_corpus_scores() {
     // through the pairs the runners-up lead, the drag refitted because no first refit came
     // near the floor.
     // The first is reported as the mode outdone by the runners-up's pair.
+    // A creep beside a nonlinear detector is found whole through the pairs the creep leads
+    // as the hysteresis's close look-alike: the hysteresis alone fits 45 held-out units
+    // better, with 25 000 left unexplained, and is reported as outdone by the pair.
     for (name, truth, outdone) in [
+        (
+            "piezo_creep+detector_nonlinearity/pair/seed1",
+            ["detector_nonlinearity", "piezo_creep"],
+            Some("piezo_hysteresis"),
+        ),
         (
             "channel_delay+missing_relaxation/pair/seed3",
             ["channel_delay", "missing_relaxation"],

@@ -1683,6 +1683,9 @@ pub fn diagnose_observed(
             let spec = nominal.with(&[*e]);
             let mut st = vec![th_s.clone()];
             st.extend(ctx.starts(&problem, nom, *e, fan).into_iter().take(1));
+            if *e == Effect::PiezoHysteresis {
+                st.extend(ctx.loop_grid_start(&problem, nom, fan));
+            }
             if let (Effect::HydrodynamicDrag, Some(lag)) = (*e, sensor_lead) {
                 let mut t = nom.theta.clone();
                 t[nom.spec.actuator_lag()] = lag;
@@ -2300,6 +2303,24 @@ pub fn diagnose_observed(
                 for (_, plain) in plain_forms.iter().filter(|(e, _)| *e == a) {
                     let partners = others.iter().filter(|(b, _)| significant_alone(b));
                     jobs.extend(partners.map(|o| (a, plain, *o)));
+                }
+            }
+            // A catalog look-alike of the best that trails it by less than the best leaves
+            // unexplained leads pairs with the same partners: with a second effect still
+            // missing, the order of two look-alikes alone says nothing of which one the
+            // pair wants. On the concealed corpus's creep beside a nonlinear detector
+            // (seed 1), a hysteresis started from a grid of loops came out 45 held-out
+            // units ahead of the creep, of 97 541, with 25 000 left unexplained: the
+            // hysteresis led the pairs, and the creep, a runner-up, never met the detector
+            // (2026-12-02).
+            if wide {
+                let unexplained = (fa.eval.chi2_held - n_ho).max(0.0);
+                let best_score = sig_singles[0].2;
+                for (r, fr, score) in sig_singles.iter().skip(1) {
+                    if a.look_alikes().contains(r) && best_score - score < unexplained {
+                        let partners = others.iter().filter(|(b, _)| b != r);
+                        jobs.extend(partners.map(|o| (*r, fr, *o)));
+                    }
                 }
             }
             let fit_pair = |&(_, first, (_, fb)): &PairJob| -> Option<Fitted> {
@@ -4329,6 +4350,35 @@ impl StartContext {
         let mut t = refit(t, 0);
         t[1] = s.contact_theta(problem.gain(&t), ahead_nm);
         Some(refit(t, 2))
+    }
+
+    /// The best of a coarse grid of hysteresis loops about the nominal fit, each one
+    /// simulation with everything else held, as the mode's frequency has one: a start of the
+    /// hysteresis's refit beside the screening's and the fixed one. From those two alone a
+    /// loop of another shape than Bouc–Wen's found no basin: on the third proxy's
+    /// Prandtl–Ishlinskii hysteresis under a step (rec14) the refit ended at α = 10⁻¹² (no
+    /// loop) and a creep was named on 1804 held-out units; from the grid's best (α 0.0015,
+    /// β 0.3/range, γ/β −0.46) the loop's refit gains 2675 and it is named (2026-12-02).
+    /// Loop widths α from 0.05 % to 15 %, β from 0.3 to 10 per drive range (soft to hard
+    /// saturation), γ/β = tanh of −½, 0 and ½. Not a start of the screening: there it moved
+    /// the screened θ the refit also starts from, and a hysteresis beside a larger mains
+    /// pick-up (`a_hysteresis_under_mains_pickup_is_named_beside_it`) lost to a mode.
+    fn loop_grid_start(&self, problem: &Problem, nom: &Fitted, fan: &dyn Fan) -> Option<Vec<f64>> {
+        let spec = nom.spec.with(&[Effect::PiezoHysteresis]);
+        let grid: Vec<Vec<f64>> = [0.0005f64, 0.0015, 0.005, 0.015, 0.05, 0.15]
+            .iter()
+            .flat_map(|&a| {
+                [0.3f64, 1.0, 3.0, 10.0]
+                    .iter()
+                    .flat_map(move |&b| [-0.5f64, 0.0, 0.5].map(move |g| (a, b, g)))
+            })
+            .map(|(a, b, g)| {
+                let mut t = nom.theta.clone();
+                t.extend_from_slice(&[a.ln(), (b / self.drive_range).ln(), g]);
+                t
+            })
+            .collect();
+        best_on_grid(problem, &spec, &grid, fan)
     }
 
     /// Start vectors (full θ) of the single-effect model of `e`, from the nominal fit. `fan`
