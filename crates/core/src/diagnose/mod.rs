@@ -2273,7 +2273,7 @@ pub fn diagnose_observed(
     // χ² over thousands of samples, yet it stood out against the nominal fit by itself.
     let leaves_structure = |f: &Fitted| well_above_floor(f.eval.chi2_held, n_ho);
     if opts.pairs {
-        if let Some((a, fa, _)) = sig_singles.first().cloned() {
+        if let Some((a, fa, best_score)) = sig_singles.first().cloned() {
             // Each partner in its best form and, where that is another, its plain one.
             let wide = leaves_structure(&fa);
             let significant_alone = |b: &Effect| sig_singles.iter().any(|(s, _, _)| s == b);
@@ -2318,7 +2318,6 @@ pub fn diagnose_observed(
             // 7336, its diagnosis 80.8 s against 63.6.
             if wide {
                 let unexplained = (fa.eval.chi2_held - n_ho).max(0.0);
-                let best_score = sig_singles[0].2;
                 for (r, fr, score) in sig_singles.iter().skip(1) {
                     if a.look_alikes().contains(r) && best_score - score < unexplained {
                         let partners = (others.iter())
