@@ -6782,6 +6782,65 @@ mod tests {
         assert!(super::at_nothing(&problem, &nom, &tip).is_empty());
     }
 
+    /// A delay or a mode is refused as unlocated exactly when its own 95 % interval spans
+    /// more than six decades or is not known: a delay of 0.4 samples with a log-sd of 1
+    /// (1.7 decades) and 3.5 (5.96) is named, 3.6 (6.13) and NaN are not; the same for a
+    /// mode's frequency, whatever its Q's interval; a nominal fit has nothing to locate.
+    #[test]
+    fn a_delay_or_mode_the_record_does_not_locate_is_refused() {
+        use super::corpus::{FS_HZ, MATERIAL_TERMS};
+        use super::fit::Fitted;
+        use super::model::Effect::{ChannelDelay, InstrumentResonance};
+        let twin = nominal_twin(3);
+        let (problem, _) = super::fit::tests::problem_of(&twin);
+        let nominal = ModelSpec::nominal(MATERIAL_TERMS);
+        let truth = super::model::truth_theta(&problem, &twin, MATERIAL_TERMS);
+        // The fit `extra` beyond the truth, with the log-sd `sd` on the effect's first
+        // parameter and 0.1 on the rest.
+        let fitted = |spec: ModelSpec, extra: &[f64], sd: f64| -> Fitted {
+            let mut theta = truth.clone();
+            theta.extend_from_slice(extra);
+            let eval = problem.evaluate(&spec, &theta).expect("a physical twin");
+            let mut sds = vec![0.1; theta.len()];
+            if let Some(first) = sds.get_mut(truth.len()) {
+                *first = sd;
+            }
+            Fitted {
+                sd: sds,
+                spec,
+                theta,
+                eval,
+                jacobian: nalgebra::DMatrix::zeros(0, 0),
+                free: vec![],
+            }
+        };
+        let delay = nominal.with(&[ChannelDelay]);
+        let mode = nominal.with(&[InstrumentResonance]);
+        let delay_at = [(0.4 / FS_HZ).ln()];
+        let mode_at = [(0.3 * FS_HZ).ln(), 5f64.ln()];
+        for (sd, refused) in [(1.0, false), (3.5, false), (3.6, true), (f64::NAN, true)] {
+            for f in [
+                fitted(delay.clone(), &delay_at, sd),
+                fitted(mode.clone(), &mode_at, sd),
+            ] {
+                assert_eq!(
+                    super::unlocated(&problem, &f),
+                    refused,
+                    "{:?} sd {sd}",
+                    f.spec
+                );
+                let said = super::refusal(&problem, &f);
+                assert_eq!(said == Some(super::UNLOCATED), refused, "{said:?}");
+            }
+        }
+        // A mode whose Q the record does not bound is still located by its frequency.
+        let mut q_open = fitted(mode.clone(), &mode_at, 0.5);
+        *q_open.sd.last_mut().unwrap() = f64::NAN;
+        assert!(!super::unlocated(&problem, &q_open));
+        let nominal_fit = fitted(nominal.clone(), &[], 0.1);
+        assert!(!super::unlocated(&problem, &nominal_fit));
+    }
+
     /// Every screened candidate is reported: those refitted by their refit, the others by
     /// their screening, among them one chosen for a refit that no form of could be fitted.
     #[test]
