@@ -1208,12 +1208,9 @@ pub fn run_bench(args: BenchArgs) -> anyhow::Result<()> {
     seconds.sort_by(f64::total_cmp);
     if let Some(&slowest) = seconds.last() {
         let over = seconds.iter().filter(|&&t| t > DIAGNOSIS_BUDGET_S).count();
-        let half = seconds.len() / 2;
-        let median = if seconds.len() % 2 == 0 {
-            0.5 * (seconds[half - 1] + seconds[half])
-        } else {
-            seconds[half]
-        };
+        // The middle sample, or the mean of the middle two.
+        let n = seconds.len();
+        let median = 0.5 * (seconds[(n - 1) / 2] + seconds[n / 2]);
         println!(
             "diagnosis time: median {median:.1} s, slowest {slowest:.1} s, {over}/{} over the {DIAGNOSIS_BUDGET_S:.0} s budget ({} samples per recording; {})",
             seconds.len(),
