@@ -1212,8 +1212,7 @@ pub fn run_bench(args: BenchArgs) -> anyhow::Result<()> {
         let n = seconds.len();
         let median = 0.5 * (seconds[(n - 1) / 2] + seconds[n / 2]);
         println!(
-            "diagnosis time: median {median:.1} s, slowest {slowest:.1} s, {over}/{} over the {DIAGNOSIS_BUDGET_S:.0} s budget ({} samples per recording; {})",
-            seconds.len(),
+            "diagnosis time: median {median:.1} s, slowest {slowest:.1} s, {over}/{n} over the {DIAGNOSIS_BUDGET_S:.0} s budget ({} samples per recording; {})",
             cases[0].recording.len(),
             if args.threads.min(cases.len()) <= 1 {
                 "one case at a time on every core"
