@@ -286,6 +286,33 @@ fn progress_line(p: &Progress) -> String {
                 )
             }
         }
+        Progress::Pairing { round, pairs, .. } => {
+            // By first effect, in order: a partner may come in more than one form, so the
+            // pairs themselves would repeat names.
+            let mut leads: Vec<(&str, usize)> = vec![];
+            for (a, _) in pairs {
+                match leads.iter_mut().find(|(l, _)| l == a) {
+                    Some((_, n)) => *n += 1,
+                    None => leads.push((a, 1)),
+                }
+            }
+            let listed: Vec<String> = (leads.iter()).map(|(a, n)| format!("{a} × {n}")).collect();
+            let which = if *round == 0 {
+                "led by the strongest"
+            } else {
+                "of runners-up, as no pair led by the strongest reached the noise floor"
+            };
+            format!("fitting {} pairs {which}: {}", pairs.len(), listed.join(", "))
+        }
+        Progress::Paired {
+            first,
+            partner,
+            chi2_per_sample,
+            ..
+        } => match chi2_per_sample {
+            Some(c) => format!("paired {first} + {partner}: χ² {c:.3} per train sample"),
+            None => format!("paired {first} + {partner}: no start gave a physical twin"),
+        },
     }
 }
 
@@ -1282,6 +1309,38 @@ mod tests {
             "refits judged: adhesion, tip_geometry beat the nominal twin on their own (strongest first); pairs next"
         );
         assert_eq!(judged(vec![]), "refits judged: none beats the nominal twin");
+        let pairing = |round| {
+            progress_line(&Progress::Pairing {
+                round,
+                pairs: vec![
+                    ("piezo_creep", "detector_nonlinearity"),
+                    ("piezo_creep", "thermal_drift"),
+                    ("piezo_hysteresis", "thermal_drift"),
+                ],
+                simulations: 36368,
+            })
+        };
+        assert_eq!(
+            pairing(0),
+            "fitting 3 pairs led by the strongest: piezo_creep × 2, piezo_hysteresis × 1"
+        );
+        assert!(pairing(1).starts_with("fitting 3 pairs of runners-up, as no pair"));
+        let paired = |chi2_per_sample| {
+            progress_line(&Progress::Paired {
+                first: "piezo_creep",
+                partner: "detector_nonlinearity",
+                chi2_per_sample,
+                simulations: 40123,
+            })
+        };
+        assert_eq!(
+            paired(Some(1.01234)),
+            "paired piezo_creep + detector_nonlinearity: χ² 1.012 per train sample"
+        );
+        assert_eq!(
+            paired(None),
+            "paired piezo_creep + detector_nonlinearity: no start gave a physical twin"
+        );
     }
 
     /// A correlation prints as the correlation, whiteness as Ljung–Box's Q per lag, a phase
