@@ -62,6 +62,9 @@ pub struct Problem {
     pub force_factor: f64,
     pub exponent: f64,
     pub fs_hz: f64,
+    /// Window samples (indices into `z_nm`, ascending) that are not residuals: spikes off a
+    /// first refinement ([`super::spikes`]). Empty unless the caller sets them.
+    pub left_out: Vec<usize>,
 }
 
 impl Problem {
@@ -125,6 +128,7 @@ impl Problem {
             force_factor: contact.force_factor(),
             exponent: contact.indentation_exponent(),
             fs_hz: p.fs_hz,
+            left_out: Vec::new(),
         })
     }
 
@@ -248,8 +252,9 @@ pub struct Refined {
     pub contact_sigma_nm: f64,
     /// Sum of squared deflection residuals, nm², over `samples`.
     pub rss_nm2: f64,
+    /// Samples fitted: the window less [`Problem::left_out`].
     pub samples: usize,
-    /// Deflection residuals, nm.
+    /// Deflection residuals over the whole window, nm; zero at [`Problem::left_out`].
     pub residuals_nm: Vec<f64>,
     pub iterations: usize,
 }
@@ -269,9 +274,10 @@ pub fn refine(prob: &Problem, start: &PronySeries) -> Result<Refined, EstimateEr
     let n = start.order();
     let np = 2 * n + 2;
     let len = prob.z_nm.len();
-    if len < 4 * np {
+    let samples = len - prob.left_out.len().min(len);
+    if samples < 4 * np {
         return Err(EstimateError::TooFewSamples {
-            samples: len,
+            samples,
             params: np,
         });
     }
@@ -286,9 +292,11 @@ pub fn refine(prob: &Problem, start: &PronySeries) -> Result<Refined, EstimateEr
     let residuals = |p: &[f64]| -> Option<DVector<f64>> {
         let (m, zc) = unpack(p)?;
         let d = prob.simulate(&m, zc);
-        Some(DVector::from_fn(len, |k, _| {
-            (prob.d_nm[k] - d[k]) / prob.sigma_nm
-        }))
+        let mut r = DVector::from_fn(len, |k, _| (prob.d_nm[k] - d[k]) / prob.sigma_nm);
+        for &k in prob.left_out.iter().filter(|&&k| k < len) {
+            r[k] = 0.0;
+        }
+        Some(r)
     };
     // Central differences: ln-parameters by 1e-6, the contact by 1e-4 nm.
     let jacobian = |p: &[f64], _: &DVector<f64>| -> Option<DMatrix<f64>> {
@@ -337,13 +345,13 @@ pub fn refine(prob: &Problem, start: &PronySeries) -> Result<Refined, EstimateEr
         contact_nm,
         contact_sigma_nm: f64::NAN,
         rss_nm2: rss,
-        samples: len,
+        samples,
         residuals_nm,
         iterations: res.iterations,
     };
     let jtj = jac.transpose() * &jac;
     let rcond = crate::linalg::scaled_rcond(&jtj);
-    let dof = len - np;
+    let dof = samples - np;
     let s2 = res.cost / dof as f64;
     let Some(cov) = spd_inverse(&jtj) else {
         out.estimate = Err(EstimateError::IllConditioned { rcond });
@@ -361,7 +369,7 @@ pub fn refine(prob: &Problem, start: &PronySeries) -> Result<Refined, EstimateEr
             opts.max_iterations
         ));
     }
-    if lag1.abs() > 3.0 / (len as f64).sqrt() {
+    if lag1.abs() > 3.0 / (samples as f64).sqrt() {
         warnings.push(format!(
             "deflection residuals are correlated (lag-1 correlation {lag1:.3}); intervals \
              assume white noise and may be too narrow"
@@ -372,7 +380,7 @@ pub fn refine(prob: &Problem, start: &PronySeries) -> Result<Refined, EstimateEr
         dof,
         cost_per_dof: s2,
         iterations: res.iterations,
-        observations: len,
+        observations: samples,
         noise_free: false,
         warnings,
     };
@@ -508,6 +516,7 @@ mod tests {
             force_factor: contact.force_factor(),
             exponent: 1.5,
             fs_hz: fs,
+            left_out: vec![],
         };
         let start =
             PronySeries::from_vec(&truth.to_vec().iter().map(|v| v * 1.2).collect::<Vec<_>>());

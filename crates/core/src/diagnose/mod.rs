@@ -9,7 +9,7 @@
 //!    actuator's lag, a contact point and a deflection offset — is fitted to the recorded
 //!    deflection by playing the recorded drive through the twin ([`model`], [`fit`]). The
 //!    noise floor is measured where the lever is free ([`noise`]); every residual is
-//!    whitened by it, so sums of squares are χ². Spikes off the fit ([`spikes`]) are left
+//!    whitened by it, so sums of squares are χ². Spikes off the fit ([`spikes`](analysis::spikes)) are left
 //!    out, and the twin fitted again without them. The mains frequency is read from its
 //!    residual where the record's own beats the grid's 50 or 60 Hz ([`mains`]).
 //! 2. **Locate.** The whitened residual is tested phase by phase (approach, contact onset,
@@ -47,10 +47,9 @@ pub mod locate;
 pub mod mains;
 pub mod model;
 pub mod noise;
-pub mod spikes;
 pub mod witness;
 
-use crate::analysis;
+use crate::analysis::{self, spikes};
 use crate::estimate::lm::Stall;
 use crate::fan::{self, Fan};
 use crate::prony::PronySeries;
@@ -1403,8 +1402,17 @@ pub fn diagnose_observed(
         &problem.left_out,
         &problem.drive,
     );
-    let spike_note = (!spiked.is_empty())
-        .then(|| spikes::describe(&spiked, &nom.eval.residual_v, noise.sigma_v, fs));
+    let spike_note = (!spiked.is_empty()).then(|| {
+        let said = spikes::describe(
+            &spiked,
+            &nom.eval.residual_v,
+            noise.sigma_v,
+            fs,
+            0,
+            "the nominal twin",
+        );
+        format!("{said}; left out of every fit and χ²")
+    });
     if !spiked.is_empty() {
         problem.leave_out(&clip::reach(&spiked, noise.ar.len().saturating_sub(1), n));
         nom = fit_nominal(&problem)?;

@@ -1,5 +1,6 @@
-//! Spikes: one to three samples of the deflection far off the nominal twin, with the
-//! residual about them at the floor. A converter's or a transfer's error, or a burst of
+//! Spikes: one to three samples of the deflection far off a fitted model (the diagnosis's
+//! nominal twin, the fit's refinement on the deflection), with the residual about them at
+//! the floor. A converter's or a transfer's error, or a burst of
 //! pick-up, not a force: no physics in the catalog moves the lever by many σ for a sample
 //! and puts it back.
 //!
@@ -10,7 +11,7 @@
 //! escaped that rule and left the diagnosis `unexplained` without a word of why. Against the
 //! nominal twin's residual, which is at the floor about them, they stand out at once.
 
-use crate::analysis::median;
+use super::median;
 
 /// How far past the floor's σ a residual sample must lie: Gaussian noise passes 8 σ once in
 /// 10¹⁵ samples.
@@ -115,20 +116,27 @@ fn drive_turns(drive: &[f64], start: usize, end: usize) -> bool {
     span(start.saturating_sub(3), end + 3).any(|j| turn(j) > bar)
 }
 
-/// Where the spikes were and how large, for a note.
-pub fn describe(spikes: &[usize], r: &[f64], sigma_v: f64, fs_hz: f64) -> String {
-    let first = spikes.first().copied().unwrap_or(0);
+/// Where the spikes were and how large, for a note: `spikes` index `r`, whose first sample
+/// is the recording's `offset`, and lie off `model` (what `r` is the residual of).
+pub fn describe(
+    spikes: &[usize],
+    r: &[f64],
+    sigma: f64,
+    fs_hz: f64,
+    offset: usize,
+    model: &str,
+) -> String {
+    let first = offset + spikes.first().copied().unwrap_or(0);
     let largest = spikes.iter().fold(0.0f64, |m, &k| m.max(r[k].abs()));
     format!(
         "deflection_v: {} sample{} of spikes, runs of 1 to {SPIKE_RUN} samples (the first at t = {:.4} s, \
-         CSV row {}; up to {:.1} σ of the floor off the nominal twin, where the residual about \
-         them is at the floor): no physics moves the lever so for a sample and puts it back; \
-         left out of every fit and χ²",
+         CSV row {}; up to {:.1} σ of the floor off {model}, where the residual about \
+         them is at the floor): no physics moves the lever so for a sample and puts it back",
         spikes.len(),
         if spikes.len() == 1 { "" } else { "s" },
         first as f64 / fs_hz,
         first + 2,
-        largest / sigma_v,
+        largest / sigma,
     )
 }
 
