@@ -653,8 +653,8 @@ pub fn whiteness(r: &[f64]) -> Whiteness {
     whiteness_with_gaps(r, &[])
 }
 
-/// Ljung–Box over [`WHITENESS_LAGS`] lags of the samples of `r` not in `gaps` (indices,
-/// ascending): the mean and the variance are the kept samples', each lag's sum runs over the
+/// Ljung–Box over [`WHITENESS_LAGS`] lags of the samples of `r` not in `gaps` (indices, in
+/// any order; those past the end are ignored): the mean and the variance are the kept samples', each lag's sum runs over the
 /// pairs both of whose samples are kept, and `N` counts the kept samples. Without gaps this
 /// is [`whiteness`] to the bit.
 ///
@@ -1463,6 +1463,16 @@ mod tests {
         assert!(fit.notes.len() > 1, "the fit's own notes are gone");
     }
 
+    /// `clean` with six single-sample spikes of ±16 σ (`sigma`, V), one every 1000 samples
+    /// from sample 5000, alternating in sign: what the spike tests leave out.
+    fn with_six_spikes(clean: &Recording, sigma: f64) -> Recording {
+        let mut rec = clean.clone();
+        for (i, k) in (5000..=10_000).step_by(1000).enumerate() {
+            rec.deflection_v[k] += if i % 2 == 0 { 16.0 } else { -16.0 } * sigma;
+        }
+        rec
+    }
+
     /// With the order chosen by BIC over the refinements (`--terms auto`), the spikes left
     /// out are left out of every order's refinement and the order is chosen again: each
     /// order's BIC is the clean record's to within what six fewer samples move it (16 to 22
@@ -1479,11 +1489,7 @@ mod tests {
             *v = v0 + (*v - v0) * (1.0 + 0.5 * k as f64 / n);
         }
         let clean = simulate(&twin, &drive_v, FS_HZ, None);
-        let mut rec = clean.clone();
-        let sigma = twin.detector.white_noise_v;
-        for (i, k) in (5000..=10_000).step_by(1000).enumerate() {
-            rec.deflection_v[k] += if i % 2 == 0 { 16.0 } else { -16.0 } * sigma;
-        }
+        let rec = with_six_spikes(&clean, twin.detector.white_noise_v);
         let auto = Terms::Auto { max: 3 };
         let fit = fit_recording(&rec, auto).unwrap();
         let whole = fit_recording(&clean, auto).unwrap();
@@ -1507,7 +1513,8 @@ mod tests {
     /// A white residual about a mean of 3 σ with every tenth sample left out and held as a
     /// zero (as a refinement holds its spikes): read as samples, the zeros make a period of
     /// ten that rejects whiteness outright; read as gaps, the test sees the white samples,
-    /// whatever the gaps hold, and without gaps it is the plain test to the bit.
+    /// whatever the gaps hold. With and without gaps, Q is the textbook value on an
+    /// alternating series.
     #[test]
     fn a_residuals_gaps_are_not_read_as_samples() {
         use rand::{rngs::StdRng, SeedableRng};
@@ -1536,12 +1543,22 @@ mod tests {
         assert!(as_gaps.white, "{}", as_gaps.ljung_box_q);
         let elsewhere = whiteness_with_gaps(&holding(-1e6), &gaps);
         assert_eq!(as_gaps, elsewhere);
-        assert_eq!(whiteness_with_gaps(&white, &[]), whiteness(&white));
         // Gaps past the end are no samples of it, and take none away.
         assert_eq!(
             whiteness_with_gaps(&white, &[4000, 5000]),
             whiteness(&white)
         );
+        // Without gaps, the textbook statistic: ±1 alternating over N = 100 samples has
+        // r_k = (−1)^k (N − k)/N, so Q = (N + 2)/N · Σ_{k=1}^{20} (N − k) = 1.02 · 1790.
+        let alternating: Vec<f64> = (0..100)
+            .map(|k| if k % 2 == 0 { 1.0 } else { -1.0 })
+            .collect();
+        let q = whiteness(&alternating).ljung_box_q;
+        assert!((q - 1825.8).abs() < 1e-9, "{q}");
+        // With every sample from the 50th on a gap, the first 50 alone: 52/50 · Σ (50 − k).
+        let half: Vec<usize> = (50..100).collect();
+        let q = whiteness_with_gaps(&alternating, &half).ljung_box_q;
+        assert!((q - 52.0 / 50.0 * 790.0).abs() < 1e-9, "{q}");
     }
 
     /// Six single-sample spikes of 16 σ in the excitation of a clean twin record (a fast
@@ -1554,11 +1571,7 @@ mod tests {
         let twin = nominal_twin(41);
         let (drive_v, _) = protocol_drive(FS_HZ);
         let clean = simulate(&twin, &drive_v, FS_HZ, None);
-        let mut rec = clean.clone();
-        let sigma = twin.detector.white_noise_v;
-        for (i, k) in (5000..=10_000).step_by(1000).enumerate() {
-            rec.deflection_v[k] += if i % 2 == 0 { 16.0 } else { -16.0 } * sigma;
-        }
+        let rec = with_six_spikes(&clean, twin.detector.white_noise_v);
         assert!(crate::recording::glitch::find_glitches(&rec.deflection_v).is_empty());
         let fit = fit_recording(&rec, Terms::Fixed(2)).unwrap();
         let whole = fit_recording(&clean, Terms::Fixed(2)).unwrap();
