@@ -1272,21 +1272,17 @@ pub(crate) fn fit_prepared(
                 });
             // The estimate of the refit, or why it has none (an order the data no longer
             // separate): then the fit with the spikes stands.
-            let rechosen = reselected.is_some();
             let again = match reselected {
                 Some((c, e, r)) => {
                     candidates = c;
-                    Ok((e, r))
+                    Ok((e, r, " and the order chosen again"))
                 }
-                None => refine(prob, &estimate.model).and_then(|a| Ok((a.estimate.clone()?, a))),
+                None => {
+                    refine(prob, &estimate.model).and_then(|a| Ok((a.estimate.clone()?, a, "")))
+                }
             };
             match again {
-                Ok((e, again)) => {
-                    let order = if rechosen {
-                        " and the order chosen again"
-                    } else {
-                        ""
-                    };
+                Ok((e, again, order)) => {
                     notes.push(format!(
                         "{said}; left out of the refinement, which was run again without them{order}"
                     ));
@@ -1347,12 +1343,10 @@ pub(crate) fn fit_prepared(
         r = fitted.clone().map(|i| y[i] - yhat[i]).collect();
     }
     // A refinement's residual holds zeros where it left samples out (spikes): they are no
-    // samples of it. (The lag-1 product below has no mean to take off: a zero adds nothing
-    // to either of its sums.)
-    let gaps = match (&refined_fit, &problem) {
-        (Some(_), Some(prob)) => &prob.left_out[..],
-        _ => &[],
-    };
+    // samples of it. (Only the spike pass above sets them, and only where `r` is that
+    // residual. The lag-1 product below has no mean to take off: a zero adds nothing to
+    // either of its sums.)
+    let gaps = problem.as_ref().map_or(&[][..], |prob| &prob.left_out[..]);
     let rss: f64 = r.iter().map(|v| v * v).sum();
     let lag1 = r.windows(2).map(|w| w[0] * w[1]).sum::<f64>() / rss.max(1e-300);
     Ok(RecordingFit {
