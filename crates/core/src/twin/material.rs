@@ -60,6 +60,100 @@ impl MaterialState {
     }
 }
 
+/// How a [`MaterialState`]'s output moves with its own parameters and with the inputs'
+/// derivatives, carried forward sample by sample (forward sensitivities).
+///
+/// The parameters, in order: `ln J0`, each term's `ln J`, each term's `ln τ` (the terms in
+/// the model's order, slowest first), then `extra` parameters that reach the material only
+/// through its input `u` (a contact point, a gain). Differentiating the recursion gives
+/// recursions of the same form: with `a = e^{−T/τ}` and `c = τ(1 − a)/T`,
+/// `∂a/∂ln τ = −a·ln a` and `∂c/∂ln τ = c − a`, and
+/// `∂x[k] = ∂a·x[k−1] + a·∂x[k−1] + ∂c·(u[k] − u[k−1]) + c·(∂u[k] − ∂u[k−1])`.
+///
+/// One run carrying these gives every column a finite-difference Jacobian takes one run
+/// each for (`docs/diagnosis-speed.md`); the caller supplies `∂u` from its contact solve
+/// (`∂d/∂θ = −g_θ/g_d`, with `g_θ` from [`Self::affine`]). Not yet used by the twin or the
+/// diagnosis: the first step of that plan.
+#[derive(Debug, Clone)]
+pub struct MaterialSensitivity {
+    terms: usize,
+    params: usize,
+    /// `∂xᵢ/∂θ_q` at `i·params + q`.
+    dx: Vec<f64>,
+    /// `∂u/∂θ_q` of the last input.
+    du_prev: Vec<f64>,
+}
+
+impl MaterialSensitivity {
+    /// All derivatives zero: a material at rest, as [`MaterialState::new`] leaves it.
+    pub fn new(state: &MaterialState, extra: usize) -> Self {
+        let terms = state.terms.len();
+        let params = 1 + 2 * terms + extra;
+        Self {
+            terms,
+            params,
+            dx: vec![0.0; terms * params],
+            du_prev: vec![0.0; params],
+        }
+    }
+
+    /// How many parameters are carried.
+    pub fn params(&self) -> usize {
+        self.params
+    }
+
+    /// `(∂α/∂θ_q, ∂β/∂θ_q)` for every parameter, where [`MaterialState::affine`] gives
+    /// `y = α·u + β` for the next input: what the contact solve's `g_θ` needs.
+    pub fn affine(&self, state: &MaterialState) -> Vec<(f64, f64)> {
+        let m = self.terms;
+        (0..self.params)
+            .map(|q| {
+                // Through the state and the last input, for every parameter.
+                let mut dbeta = 0.0;
+                for (i, ((j, a, c), _)) in state.terms.iter().zip(&state.x).enumerate() {
+                    dbeta += j * (c * self.du_prev[q] - a * self.dx[i * self.params + q]);
+                }
+                // And directly, for the material's own.
+                let dalpha = if q == 0 {
+                    state.j0
+                } else if q <= m {
+                    let (j, a, c) = state.terms[q - 1];
+                    dbeta += j * (c * state.prev_u - a * state.x[q - 1]);
+                    -j * c
+                } else if q <= 2 * m {
+                    let i = q - 1 - m;
+                    let (j, a, c) = state.terms[i];
+                    let (da, dc) = (-a * a.ln(), c - a);
+                    dbeta += j * (dc * state.prev_u - da * state.x[i]);
+                    -j * dc
+                } else {
+                    0.0
+                };
+                (dalpha, dbeta)
+            })
+            .collect()
+    }
+
+    /// Advances the derivatives with this sample's input `u` and its derivatives `du` (one
+    /// per parameter); `state` is the material *before* its own [`MaterialState::commit`]
+    /// with `u`.
+    pub fn commit(&mut self, state: &MaterialState, u: f64, du: &[f64]) {
+        let m = self.terms;
+        for (i, ((_, a, c), x)) in state.terms.iter().zip(&state.x).enumerate() {
+            let (da, dc) = (-a * a.ln(), c - a);
+            for (q, &duq) in du.iter().enumerate().take(self.params) {
+                let k = i * self.params + q;
+                let mut next = a * self.dx[k] + c * (duq - self.du_prev[q]);
+                if q == 1 + m + i {
+                    next += da * x + dc * (u - state.prev_u);
+                }
+                self.dx[k] = next;
+            }
+        }
+        self.du_prev.copy_from_slice(&du[..self.params]);
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -96,6 +190,92 @@ mod tests {
                 let closed = u0 * m.creep_compliance(t - tt / 2.0);
                 assert!((y - closed).abs() / closed < 1e-4);
             }
+        }
+    }
+
+    /// The forward sensitivities of a material in a feedback loop (its input depends on its
+    /// last output, as a contact's force does on the indentation) are the derivatives of its
+    /// output: against central differences of whole runs with each parameter moved, to the
+    /// differences' own truncation error (7e-10 to 3.3e-9 of the column here, at a step of
+    /// 1e-4). With `∂c/∂ln τ` taken as `c` rather than `c − a`, τ1's column is off by 2.2;
+    /// with the last input's derivatives not carried, by 5e31.
+    #[test]
+    fn forward_sensitivities_are_the_outputs_derivatives() {
+        use crate::prony::PronyTerm;
+        let fs = 4000.0;
+        let model = |p: &[f64]| {
+            PronySeries::new(
+                p[0].exp(),
+                vec![
+                    PronyTerm {
+                        j_per_pa: p[1].exp(),
+                        tau_s: p[3].exp(),
+                    },
+                    PronyTerm {
+                        j_per_pa: p[2].exp(),
+                        tau_s: p[4].exp(),
+                    },
+                ],
+            )
+        };
+        // ln J0, ln J1, ln J2, ln τ1 (80 ms), ln τ2 (0.5 ms, two samples), slowest first.
+        let p0 = [
+            4e-6f64.ln(),
+            1.5e-6f64.ln(),
+            0.6e-6f64.ln(),
+            0.08f64.ln(),
+            5e-4f64.ln(),
+        ];
+        // u[k] = s[k] − κ·y[k−1]: the input answers the last output.
+        let kappa = 3e4;
+        let drive = |k: usize| {
+            let t = k as f64 / fs;
+            1.0 + 0.5 * (2.0 * std::f64::consts::PI * 7.0 * t).sin()
+                + 0.2 * (2.0 * std::f64::consts::PI * 310.0 * t).sin()
+        };
+        let n = 2000;
+        let run = |p: &[f64]| -> Vec<f64> {
+            let mut s = MaterialState::new(&model(p), fs);
+            let mut y = 0.0;
+            (0..n)
+                .map(|k| {
+                    y = s.commit(drive(k) - kappa * y);
+                    y
+                })
+                .collect()
+        };
+        let mut s = MaterialState::new(&model(&p0), fs);
+        let mut sens = MaterialSensitivity::new(&s, 0);
+        assert_eq!(sens.params(), 5);
+        let (mut y, mut dy) = (0.0, vec![0.0; 5]);
+        let mut columns: Vec<Vec<f64>> = (0..5).map(|_| Vec::with_capacity(n)).collect();
+        for k in 0..n {
+            let u = drive(k) - kappa * y;
+            let du: Vec<f64> = dy.iter().map(|d| -kappa * d).collect();
+            let (alpha, _) = s.affine();
+            let moved = sens.affine(&s);
+            sens.commit(&s, u, &du);
+            y = s.commit(u);
+            for (q, (dalpha, dbeta)) in moved.into_iter().enumerate() {
+                dy[q] = dalpha * u + alpha * du[q] + dbeta;
+                columns[q].push(dy[q]);
+            }
+        }
+        for (q, column) in columns.iter().enumerate() {
+            let at = |h: f64| {
+                let mut p = p0;
+                p[q] += h;
+                run(&p)
+            };
+            let (plus, minus) = (at(1e-4), at(-1e-4));
+            let (mut off, mut size) = (0.0, 0.0);
+            for k in 0..n {
+                let central = (plus[k] - minus[k]) / 2e-4;
+                off += (central - column[k]).powi(2);
+                size += central.powi(2);
+            }
+            let off = (off / size).sqrt();
+            assert!(off < 1e-6, "parameter {q}: {off:e}");
         }
     }
 }
