@@ -76,81 +76,84 @@ impl MaterialState {
 /// diagnosis: the first step of that plan.
 #[derive(Debug, Clone)]
 pub struct MaterialSensitivity {
-    terms: usize,
-    params: usize,
+    /// Per term, `(∂a/∂ln τ, ∂c/∂ln τ)`: constants of the material, worked out once.
+    rates: Vec<(f64, f64)>,
     /// `∂xᵢ/∂θ_q` at `i·params + q`.
     dx: Vec<f64>,
-    /// `∂u/∂θ_q` of the last input.
+    /// `∂u/∂θ_q` of the last input: one per parameter.
     du_prev: Vec<f64>,
 }
 
 impl MaterialSensitivity {
     /// All derivatives zero: a material at rest, as [`MaterialState::new`] leaves it.
     pub fn new(state: &MaterialState, extra: usize) -> Self {
-        let terms = state.terms.len();
-        let params = 1 + 2 * terms + extra;
+        let params = 1 + 2 * state.terms.len() + extra;
         Self {
-            terms,
-            params,
-            dx: vec![0.0; terms * params],
+            rates: (state.terms.iter())
+                .map(|&(_, a, c)| (-a * a.ln(), c - a))
+                .collect(),
+            dx: vec![0.0; state.terms.len() * params],
             du_prev: vec![0.0; params],
         }
     }
 
     /// How many parameters are carried.
     pub fn params(&self) -> usize {
-        self.params
+        self.du_prev.len()
     }
 
-    /// `(∂α/∂θ_q, ∂β/∂θ_q)` for every parameter, where [`MaterialState::affine`] gives
-    /// `y = α·u + β` for the next input: what the contact solve's `g_θ` needs.
-    pub fn affine(&self, state: &MaterialState) -> Vec<(f64, f64)> {
-        let m = self.terms;
-        (0..self.params)
-            .map(|q| {
-                // Through the state and the last input, for every parameter.
-                let mut dbeta = 0.0;
-                for (i, ((j, a, c), _)) in state.terms.iter().zip(&state.x).enumerate() {
-                    dbeta += j * (c * self.du_prev[q] - a * self.dx[i * self.params + q]);
-                }
-                // And directly, for the material's own.
-                let dalpha = if q == 0 {
-                    state.j0
-                } else if q <= m {
-                    let (j, a, c) = state.terms[q - 1];
-                    dbeta += j * (c * state.prev_u - a * state.x[q - 1]);
-                    -j * c
-                } else if q <= 2 * m {
-                    let i = q - 1 - m;
-                    let (j, a, c) = state.terms[i];
-                    let (da, dc) = (-a * a.ln(), c - a);
-                    dbeta += j * (dc * state.prev_u - da * state.x[i]);
-                    -j * dc
-                } else {
-                    0.0
-                };
-                (dalpha, dbeta)
-            })
-            .collect()
+    /// `(∂α/∂θ_q, ∂β/∂θ_q)` for every parameter, written into `out` (one per parameter),
+    /// where [`MaterialState::affine`] gives `y = α·u + β` for the next input: what the
+    /// contact solve's `g_θ` needs. Into the caller's slice, as it is asked for every sample.
+    pub fn affine(&self, state: &MaterialState, out: &mut [(f64, f64)]) {
+        let (m, params) = (self.rates.len(), self.params());
+        for (q, slot) in out.iter_mut().enumerate().take(params) {
+            // Through the state and the last input, for every parameter.
+            let mut dbeta = 0.0;
+            for (i, ((j, a, c), _)) in state.terms.iter().zip(&state.x).enumerate() {
+                dbeta += j * (c * self.du_prev[q] - a * self.dx[i * params + q]);
+            }
+            // And directly, for the material's own.
+            let dalpha = if q == 0 {
+                state.j0
+            } else if q <= m {
+                let (j, a, c) = state.terms[q - 1];
+                dbeta += j * (c * state.prev_u - a * state.x[q - 1]);
+                -j * c
+            } else if q <= 2 * m {
+                let i = q - 1 - m;
+                let (j, ..) = state.terms[i];
+                let (da, dc) = self.rates[i];
+                dbeta += j * (dc * state.prev_u - da * state.x[i]);
+                -j * dc
+            } else {
+                0.0
+            };
+            *slot = (dalpha, dbeta);
+        }
     }
 
     /// Advances the derivatives with this sample's input `u` and its derivatives `du` (one
     /// per parameter); `state` is the material *before* its own [`MaterialState::commit`]
     /// with `u`.
     pub fn commit(&mut self, state: &MaterialState, u: f64, du: &[f64]) {
-        let m = self.terms;
+        let (m, params) = (self.rates.len(), self.params());
+        debug_assert_eq!(du.len(), params, "one input derivative per parameter");
         for (i, ((_, a, c), x)) in state.terms.iter().zip(&state.x).enumerate() {
-            let (da, dc) = (-a * a.ln(), c - a);
-            for (q, &duq) in du.iter().enumerate().take(self.params) {
-                let k = i * self.params + q;
-                let mut next = a * self.dx[k] + c * (duq - self.du_prev[q]);
+            let (da, dc) = self.rates[i];
+            let row = &mut self.dx[i * params..(i + 1) * params];
+            for (q, (dxq, (&duq, du_prev))) in
+                row.iter_mut().zip(du.iter().zip(&self.du_prev)).enumerate()
+            {
+                *dxq = a * *dxq + c * (duq - du_prev);
                 if q == 1 + m + i {
-                    next += da * x + dc * (u - state.prev_u);
+                    *dxq += da * x + dc * (u - state.prev_u);
                 }
-                self.dx[k] = next;
             }
         }
-        self.du_prev.copy_from_slice(&du[..self.params]);
+        for (p, &d) in self.du_prev.iter_mut().zip(du) {
+            *p = d;
+        }
     }
 }
 
@@ -248,15 +251,16 @@ mod tests {
         let mut sens = MaterialSensitivity::new(&s, 0);
         assert_eq!(sens.params(), 5);
         let (mut y, mut dy) = (0.0, vec![0.0; 5]);
+        let mut moved = vec![(0.0, 0.0); 5];
         let mut columns: Vec<Vec<f64>> = (0..5).map(|_| Vec::with_capacity(n)).collect();
         for k in 0..n {
             let u = drive(k) - kappa * y;
             let du: Vec<f64> = dy.iter().map(|d| -kappa * d).collect();
             let (alpha, _) = s.affine();
-            let moved = sens.affine(&s);
+            sens.affine(&s, &mut moved);
             sens.commit(&s, u, &du);
             y = s.commit(u);
-            for (q, (dalpha, dbeta)) in moved.into_iter().enumerate() {
+            for (q, &(dalpha, dbeta)) in moved.iter().enumerate() {
                 dy[q] = dalpha * u + alpha * du[q] + dbeta;
                 columns[q].push(dy[q]);
             }
