@@ -10,7 +10,7 @@ truth = {t['name']: t for t in json.load(open(os.path.join(corpus, 'truth.json')
 # linearly to 20 000 samples, as a diagnosis's simulations each step through every sample.
 def samples(name):
     with open(os.path.join(corpus, 'recs', name + '.csv')) as f:
-        return sum(1 for line in f if line.strip() and not line.startswith('#')) - 1
+        return sum(1 for line in f if line.strip()) - 1
 def run(name):
     t0 = time.time()
     p = subprocess.run([binary, 'diagnose', os.path.join(corpus, 'recs', name + '.csv'), '--json'],
