@@ -24,6 +24,7 @@ pub mod detector;
 pub mod dynamics;
 pub mod feedforward;
 pub mod material;
+pub mod tangent;
 
 use crate::contact::{
     decreasing_root, decreasing_root_and_slope, decreasing_root_and_slope_from, Contact,
@@ -38,6 +39,7 @@ use rand::rngs::StdRng;
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
+use tangent::Tangent;
 
 /// The longest detector delay a twin accepts, s: a channel delays by microseconds to
 /// milliseconds, and a record is seconds long.
@@ -686,6 +688,37 @@ impl Twin {
 
     /// Advances one sample with drive `v` volts.
     pub fn step(&mut self, v: f64) -> TwinSample {
+        self.step_inner(v, None)
+    }
+
+    /// The forward sensitivities of this twin at rest (just built or settled), for
+    /// [`Self::step_with_tangent`]; `None` where the twin has a part they do not follow
+    /// (see [`tangent`]): an adhesive neck, a long-range adhesion, the lever's mode, or a
+    /// detector that does more than delay.
+    pub fn tangent(&self) -> Option<Tangent> {
+        let s = &self.cfg.sample;
+        let delay_only = DetectorConfig {
+            delay_s: 0.0,
+            ..self.cfg.detector.clone()
+        } == DetectorConfig::default();
+        let follows = s.neck.is_none()
+            && s.adhesion_range_nm.is_none()
+            && self.lever.is_none()
+            && delay_only
+            && self.slot == SampleSlot::Soft;
+        follows.then(|| Tangent::new(&self.material, &self.cfg.detector, self.fs_hz))
+    }
+
+    /// [`Self::step`], carrying `tangent` (from [`Self::tangent`], stepped with every sample
+    /// since) along: afterwards [`Tangent::deflection_v`] holds how this sample's reading
+    /// moves with each parameter.
+    pub fn step_with_tangent(&mut self, v: f64, tangent: &mut Tangent) -> TwinSample {
+        let sample = self.step_inner(v, Some(&mut *tangent));
+        tangent.read_out(self.cfg.cantilever.deflection_sensitivity_nm_per_v);
+        sample
+    }
+
+    fn step_inner(&mut self, v: f64, tangent: Option<&mut Tangent>) -> TwinSample {
         let base = self.actuator.step(v);
         let k = self.cfg.cantilever.spring_constant_n_per_m;
         // Drag c·ḃ (nN) pushes on the lever like a repulsive force while approaching; in
@@ -694,7 +727,7 @@ impl Twin {
             let v = base_velocity(self.earlier_base_nm, self.last_base_nm, base, self.fs_hz);
             drag.coefficient_nn_s_per_nm * v * 1e-9
         });
-        let (d_static, lever_share) = self.solve_contact(base, f_ext_n, true);
+        let (d_static, lever_share) = self.solve_contact_with(base, f_ext_n, true, tangent);
         let mut d = d_static;
         self.earlier_base_nm = self.last_base_nm;
         self.last_base_nm = base;
@@ -737,6 +770,17 @@ impl Twin {
     /// on the lever, and the lever's share of that force (see [`TruthSample::lever_share`]);
     /// with `commit` the material and the contact state advance.
     fn solve_contact(&mut self, base_nm: f64, f_ext_n: f64, commit: bool) -> (f64, f64) {
+        self.solve_contact_with(base_nm, f_ext_n, commit, None)
+    }
+
+    /// [`Self::solve_contact`], advancing `tangent` with the commit.
+    fn solve_contact_with(
+        &mut self,
+        base_nm: f64,
+        f_ext_n: f64,
+        commit: bool,
+        tangent: Option<&mut Tangent>,
+    ) -> (f64, f64) {
         let k = self.cfg.cantilever.spring_constant_n_per_m; // N/m = nN/nm
         match self.slot {
             SampleSlot::Reference => {
@@ -758,7 +802,7 @@ impl Twin {
                     (f_ext_n / k * 1e9, 1.0)
                 }
             }
-            SampleSlot::Soft => self.solve_soft(base_nm, f_ext_n, commit),
+            SampleSlot::Soft => self.solve_soft(base_nm, f_ext_n, commit, tangent),
         }
     }
 
@@ -797,7 +841,13 @@ impl Twin {
         self.wander_nm = a * self.wander_nm + (1.0 - a) * self.wander_inner_nm;
     }
 
-    fn solve_soft(&mut self, base_nm: f64, f_ext_n: f64, commit: bool) -> (f64, f64) {
+    fn solve_soft(
+        &mut self,
+        base_nm: f64,
+        f_ext_n: f64,
+        commit: bool,
+        tangent: Option<&mut Tangent>,
+    ) -> (f64, f64) {
         let s = &self.cfg.sample;
         let k = self.cfg.cantilever.spring_constant_n_per_m;
         let f_adh_n = s.adhesion_nn.unwrap_or(0.0) * 1e-9;
@@ -940,6 +990,8 @@ impl Twin {
             };
             (touching, free)
         };
+        // The solve's slope `g_d` at the root, in contact (the tangent's denominator).
+        let mut root_slope = None;
         let (d_m, u, share) = if touching {
             // Two or three Newton steps from the previous solution are what keep the twin far
             // faster than real time. The third mostly confirms the second (on the corpus's
@@ -964,6 +1016,7 @@ impl Twin {
             // dd/dF_ext = −(∂g/∂F_ext)/(∂g/∂d), times K: the slope from the solve's last
             // step, within `tol` of the root, rather than one more evaluation.
             let share = -(alpha * cf * k_si) / slope;
+            root_slope = Some(slope);
             (d, cf * (k_si * d + f_net_n), share)
         } else if let Some(d) = self.neck_hold(gap_m, d_lo, commit) {
             (d, 0.0, 1.0)
@@ -982,6 +1035,27 @@ impl Twin {
                 self.neck_foot_m = None;
             }
             self.in_contact = touching;
+            if let Some(t) = tangent {
+                // ∂d = −g_θ/g_d in contact (see `tangent`); the free lever does not move.
+                t.material.affine(&self.material, &mut t.affine);
+                for q in 0..t.params() {
+                    let dd = match root_slope {
+                        Some(slope) => {
+                            // g_d = −f′(h) − α·cf·K: the filmed shape's slope from the solve's.
+                            let filmed_slope = -slope - alpha * cf * k_si;
+                            let (dalpha, dbeta) = t.affine[q];
+                            let g_q = filmed_slope * t.gap_derivative_m(q, base_nm)
+                                - dalpha * cf * (k_si * d_m + f_net_n)
+                                - dbeta;
+                            -g_q / slope
+                        }
+                        None => 0.0,
+                    };
+                    t.deflection_m[q] = dd;
+                    t.du[q] = cf * k_si * dd;
+                }
+                t.material.commit(&self.material, u, &t.du);
+            }
             self.material.commit(u);
             self.last_d_m = d_m;
         }

@@ -657,3 +657,108 @@ fn a_creeping_film_stiffens_inside_the_hereditary_integral() {
     // from the solve's slope, which leaves out the film factor's own change with depth).
     assert!(worst_outside > 1e-3, "outside {worst_outside:e}");
 }
+
+/// The tangent's columns are the reading's derivatives: against central differences of
+/// whole runs, for a two-term material under a filmed sphere with DMT adhesion, behind an
+/// actuator with creep and a mode and a detector that delays by a fraction of a sample.
+/// The drive approaches, presses in and plays two lines, and retracts off the surface, so
+/// contact is gained and lost once each.
+#[test]
+fn a_tangents_columns_are_the_readings_derivatives() {
+    use super::actuator::{Creep, ResonantMode};
+    use super::tangent::TangentParam;
+    let fs = 4000.0;
+    let params = [
+        TangentParam::LnLongTimeCompliance,
+        TangentParam::LnTermCompliance(0),
+        TangentParam::LnTermCompliance(1),
+        TangentParam::LnTermTau(0),
+        TangentParam::LnTermTau(1),
+        TangentParam::ContactPoint,
+        TangentParam::LnGain,
+    ];
+    let config = |moved: Option<(TangentParam, f64)>| {
+        let by = |p: TangentParam| match moved {
+            Some((q, h)) if q == p => h,
+            _ => 0.0,
+        };
+        let mut cfg = base_config();
+        cfg.actuator.gain_nm_per_v = 100.0 * by(TangentParam::LnGain).exp();
+        cfg.actuator.creep = Some(Creep {
+            fraction: 0.05,
+            tau_s: 0.2,
+            decades: None,
+        });
+        cfg.actuator.modes = vec![ResonantMode::held(900.0, 3.0)];
+        let (j1, j2) = (
+            0.8e-6 * by(TangentParam::LnTermCompliance(0)).exp(),
+            0.5e-6 * by(TangentParam::LnTermCompliance(1)).exp(),
+        );
+        cfg.sample.material = PronySeries::new(
+            3e-6 * by(TangentParam::LnLongTimeCompliance).exp(),
+            vec![
+                PronyTerm {
+                    j_per_pa: j1,
+                    tau_s: 0.05 * by(TangentParam::LnTermTau(0)).exp(),
+                },
+                PronyTerm {
+                    j_per_pa: j2,
+                    tau_s: 2e-3 * by(TangentParam::LnTermTau(1)).exp(),
+                },
+            ],
+        );
+        cfg.sample.contact_point_nm = 100.0 + by(TangentParam::ContactPoint);
+        cfg.sample.adhesion_nn = Some(0.5);
+        cfg.sample.thickness_nm = Some(400.0);
+        cfg.detector.delay_s = 0.3 / fs;
+        assert!(cfg.validate("").is_empty(), "{:?}", cfg.validate(""));
+        cfg
+    };
+    let n = 3000;
+    let drive = |k: usize| {
+        let t = k as f64 / fs;
+        let tau = std::f64::consts::TAU;
+        // 0 → 1.8 V over 0.25 s, two lines for 0.4 s, back to 0 V.
+        let press = (t / 0.25).min(1.0) * 1.8 - ((t - 0.65) / 0.05).clamp(0.0, 1.0) * 1.8;
+        press + 0.1 * (tau * 7.0 * t).sin() + 0.05 * (tau * 310.0 * t).sin()
+    };
+    let run = |cfg: &TwinConfig| -> Vec<f64> {
+        let mut twin = Twin::new(cfg, fs);
+        twin.settle(drive(0));
+        (0..n).map(|k| twin.step(drive(k)).deflection_v).collect()
+    };
+    let mut twin = Twin::new(&config(None), fs);
+    twin.settle(drive(0));
+    let mut tangent = twin.tangent().expect("this twin has a tangent");
+    assert_eq!(tangent.params(), params.len());
+    let mut columns = vec![Vec::with_capacity(n); params.len()];
+    let mut plain = Vec::with_capacity(n);
+    let (mut touched, mut left) = (false, false);
+    for k in 0..n {
+        let s = twin.step_with_tangent(drive(k), &mut tangent);
+        touched |= s.truth.in_contact;
+        left |= touched && !s.truth.in_contact;
+        plain.push(s.deflection_v);
+        for (c, &d) in columns.iter_mut().zip(tangent.deflection_v()) {
+            c.push(d);
+        }
+    }
+    assert!(touched && left, "the drive gains and loses contact");
+    // Carrying the tangent does not change the twin's own run.
+    assert_eq!(plain, run(&config(None)));
+    let h = 1e-4;
+    for &p in &params {
+        let q = tangent.index(p).expect("carried");
+        assert_eq!(tangent.param(q), p);
+        let (plus, minus) = (run(&config(Some((p, h)))), run(&config(Some((p, -h)))));
+        let (mut off, mut size) = (0.0, 0.0);
+        for k in 0..n {
+            let central = (plus[k] - minus[k]) / (2.0 * h);
+            off += (central - columns[q][k]).powi(2);
+            size += central.powi(2);
+        }
+        let off = (off / size).sqrt();
+        eprintln!("{p:?}: {off:e}");
+        assert!(size > 0.0 && off < 1e-7, "{p:?}: {off:e}");
+    }
+}

@@ -1,0 +1,148 @@
+//! Forward sensitivities of a twin's deflection: how every sample of the detector's reading
+//! moves with the material's parameters, the contact point and the actuator's gain, carried
+//! along one run ([`super::Twin::step_with_tangent`]) instead of one run per parameter.
+//!
+//! A fit's Jacobian by finite differences costs one simulation per parameter, and the
+//! Jacobians are 80–85 % of a slow diagnosis's simulations (`docs/diagnosis-speed.md`). The
+//! nominal material, the contact point and the gain are in every fit; their columns come
+//! from one run carrying them. The math:
+//!
+//! - the material's state steps linearly, and so do its derivatives
+//!   ([`MaterialSensitivity`]), which give `∂α` and `∂β` of this sample's `y = α·u + β`;
+//! - the contact root of `g(d) = f(h) − α·cf·(K·d + F) − β` (`f` the filmed shape function,
+//!   `h = gap − d`) moves as `∂d = −g_θ/g_d`, where `g_d` is the slope the Newton solve
+//!   holds and `g_θ = f′(h)·∂gap − ∂α·cf·(K·d + F) − ∂β`;
+//! - the gap moves with the contact point (−1 nm per nm) and with the gain (the base is
+//!   homogeneous of degree one in the gain: Bouc–Wen, creep and the modes all scale with it,
+//!   so `∂base/∂ln g = base`);
+//! - the contact's input `u = cf·(K·d + F)` moves as `cf·K·∂d`, and feeds the state's
+//!   derivatives for the next sample; out of contact `u = 0` and the free lever's deflection
+//!   (`F_ext/K`) does not move;
+//! - the detector's delay is linear: each derivative goes through a delay line of its own.
+//!
+//! A contact gained or lost between samples is a jump no derivative sees; so are the
+//! adhesive neck and the long-range pull, the lever's mode, and a detector with noise,
+//! nonlinearity or quantisation: [`super::Twin::tangent`] gives no tangent for a twin with any
+//! of them, and its caller takes finite differences there.
+
+use super::detector::{Detector, DetectorConfig};
+use super::material::{MaterialSensitivity, MaterialState};
+
+/// One parameter a [`Tangent`] carries.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TangentParam {
+    /// ln J0, the material's long-time compliance, its terms' J held.
+    LnLongTimeCompliance,
+    /// ln J of the material's term `i` (slowest first, as [`crate::prony::PronySeries`]
+    /// orders them), J0 held.
+    LnTermCompliance(usize),
+    /// ln τ of the material's term `i`.
+    LnTermTau(usize),
+    /// The sample's contact point, nm.
+    ContactPoint,
+    /// ln of the actuator's gain.
+    LnGain,
+}
+
+/// The sensitivities of a running twin; see the module's docs.
+#[derive(Debug, Clone)]
+pub struct Tangent {
+    pub(super) material: MaterialSensitivity,
+    terms: usize,
+    /// `(∂α, ∂β)` of this sample, per parameter (scratch).
+    pub(super) affine: Vec<(f64, f64)>,
+    /// `∂u` of this sample, per parameter (scratch).
+    pub(super) du: Vec<f64>,
+    /// `∂d/∂θ` of this sample's static deflection, m.
+    pub(super) deflection_m: Vec<f64>,
+    /// `∂(deflection reading)/∂θ` of this sample, V.
+    deflection_v: Vec<f64>,
+    /// One delay line per parameter, where the detector delays.
+    delays: Vec<Detector>,
+}
+
+impl Tangent {
+    /// All derivatives zero, for a twin at rest whose material is `material`, whose detector
+    /// is `detector` (only its delay is read) and that runs at `fs_hz`.
+    pub(super) fn new(material: &MaterialState, detector: &DetectorConfig, fs_hz: f64) -> Self {
+        let sens = MaterialSensitivity::new(material, 2);
+        let params = sens.params();
+        let delay = DetectorConfig {
+            delay_s: detector.delay_s,
+            ..DetectorConfig::default()
+        };
+        Self {
+            terms: (params - 3) / 2,
+            affine: vec![(0.0, 0.0); params],
+            du: vec![0.0; params],
+            deflection_m: vec![0.0; params],
+            deflection_v: vec![0.0; params],
+            delays: if detector.delay_s > 0.0 {
+                (0..params)
+                    .map(|_| Detector::new(&delay, fs_hz, 0))
+                    .collect()
+            } else {
+                Vec::new()
+            },
+            material: sens,
+        }
+    }
+
+    /// How many parameters are carried.
+    pub fn params(&self) -> usize {
+        self.du.len()
+    }
+
+    /// The parameters, in the order [`Self::deflection_v`] gives them.
+    pub fn param(&self, q: usize) -> TangentParam {
+        let m = self.terms;
+        match q {
+            0 => TangentParam::LnLongTimeCompliance,
+            q if q <= m => TangentParam::LnTermCompliance(q - 1),
+            q if q <= 2 * m => TangentParam::LnTermTau(q - 1 - m),
+            q if q == 2 * m + 1 => TangentParam::ContactPoint,
+            _ => TangentParam::LnGain,
+        }
+    }
+
+    /// The index of `p`, if carried.
+    pub fn index(&self, p: TangentParam) -> Option<usize> {
+        let m = self.terms;
+        match p {
+            TangentParam::LnLongTimeCompliance => Some(0),
+            TangentParam::LnTermCompliance(i) => (i < m).then_some(1 + i),
+            TangentParam::LnTermTau(i) => (i < m).then_some(1 + m + i),
+            TangentParam::ContactPoint => Some(2 * m + 1),
+            TangentParam::LnGain => Some(2 * m + 2),
+        }
+    }
+
+    /// How the gap (m) moves with parameter `q` at base position `base_nm`.
+    pub(super) fn gap_derivative_m(&self, q: usize, base_nm: f64) -> f64 {
+        match self.param(q) {
+            TangentParam::ContactPoint => -1e-9,
+            TangentParam::LnGain => base_nm * 1e-9,
+            _ => 0.0,
+        }
+    }
+
+    /// The last sample's derivatives of the detector's reading, V, one per parameter.
+    pub fn deflection_v(&self) -> &[f64] {
+        &self.deflection_v
+    }
+
+    /// Takes this sample's static deflection derivatives (in `deflection_m`) to the reading:
+    /// nm over the sensitivity (nm/V), then the detector's delay.
+    pub(super) fn read_out(&mut self, sensitivity_nm_per_v: f64) {
+        for (q, (out, &dd)) in (self.deflection_v.iter_mut())
+            .zip(&self.deflection_m)
+            .enumerate()
+        {
+            let v = dd * 1e9 / sensitivity_nm_per_v;
+            *out = match self.delays.get_mut(q) {
+                Some(line) => line.step(v),
+                None => v,
+            };
+        }
+    }
+}
