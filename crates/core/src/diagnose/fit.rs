@@ -31,11 +31,18 @@ pub struct Fitted {
 /// 1e-4 is 0.01 % or 1 pm.
 pub(crate) const FD_STEP: f64 = 1e-4;
 
-/// Jacobian of the train residuals over the parameters `which`, by forward differences from
-/// `base` (the model at `th`), and that of the closed-form coefficients (rows: coefficients),
-/// which the same simulations give. The columns are independent simulations: `fan` may run
-/// them side by side.
-fn jacobian(
+/// Jacobian of the train residuals over the parameters `which`, and that of the closed-form
+/// coefficients (rows: coefficients). The columns the twin's tangent follows
+/// ([`Problem::tangent_covers`]: the gain, the contact point, the material) come from one run
+/// carrying them ([`Problem::evaluate_with_tangent`]); the others by forward differences
+/// from `base` (the model at `th`), one simulation each. The run and the differences are
+/// independent simulations: `fan` may run them side by side.
+///
+/// The tangent's columns are exact where the differences' carry their step's truncation and
+/// the contact solve's tolerance (`docs/diagnosis-speed.md`); a parameter tied to another
+/// (`ties`) takes the sum of both columns, as its difference moves both.
+#[allow(clippy::too_many_arguments)]
+fn jacobian_with(
     problem: &Problem,
     spec: &ModelSpec,
     th: &[f64],
@@ -43,15 +50,46 @@ fn jacobian(
     which: &[usize],
     ties: &[(usize, usize)],
     fan: &dyn Fan,
+    use_tangent: bool,
 ) -> Option<(DMatrix<f64>, DMatrix<f64>)> {
     let r0 = &base.train_residuals;
+    // The columns from the tangent: each parameter with every parameter tied to it covered.
+    let covers = if use_tangent {
+        problem.tangent_covers(spec)
+    } else {
+        Vec::new()
+    };
+    let moves = |i: usize| {
+        std::iter::once(i).chain((ties.iter()).filter(move |&&(lead, _)| lead == i).map(|t| t.1))
+    };
+    let by_tangent: Vec<usize> = (0..which.len())
+        .filter(|&c| moves(which[c]).all(|i| covers.contains(&i)))
+        .collect();
+    let tangent_params: Vec<usize> = {
+        let mut p: Vec<usize> = by_tangent.iter().flat_map(|&c| moves(which[c])).collect();
+        p.sort_unstable();
+        p.dedup();
+        p
+    };
+    let by_difference: Vec<usize> = (0..which.len())
+        .filter(|c| !by_tangent.contains(c))
+        .collect();
     // A column that fails fails the Jacobian: the columns not yet started are skipped then
-    // (all of them after it when the fan is serial, as a plain loop would).
+    // (all of them after it when the fan is serial, as a plain loop would). Job 0 is the
+    // tangent's run, where it has columns to give.
     let failed = AtomicBool::new(false);
-    let columns = fan::map(fan, which.len(), |c| {
+    let with_tangent = !tangent_params.is_empty();
+    let jobs = by_difference.len() + usize::from(with_tangent);
+    let mut outcomes = fan::map(fan, jobs, |job| {
         if failed.load(Ordering::Relaxed) {
             return None;
         }
+        if with_tangent && job == 0 {
+            return Some(Err(problem
+                .evaluate_with_tangent(spec, th, &tangent_params)
+                .map(|(_, columns)| columns)));
+        }
+        let c = by_difference[job - usize::from(with_tangent)];
         let i = which[c];
         // Forward difference; backward where the forward point is not physical (a bound).
         let mut h = FD_STEP;
@@ -76,12 +114,50 @@ fn jacobian(
                 e
             }
         };
-        Some((e.train_residuals, e.linear, h))
+        Some(Ok((c, e.train_residuals, e.linear, h)))
     });
     let mut jac = DMatrix::<f64>::zeros(r0.len(), which.len());
     let mut linear = DMatrix::<f64>::zeros(base.linear.len(), which.len());
-    for (c, col) in columns.into_iter().enumerate() {
-        let (r, l, h) = col?;
+    let tangent = if with_tangent {
+        match outcomes.remove(0)? {
+            Err(tangent) => tangent,
+            Ok(_) => None,
+        }
+    } else {
+        None
+    };
+    match tangent {
+        Some(columns) => {
+            for &c in &by_tangent {
+                for i in moves(which[c]) {
+                    let Some(p) = tangent_params.iter().position(|&q| q == i) else {
+                        continue;
+                    };
+                    let (r, l) = &columns[p];
+                    for (k, v) in r.iter().enumerate() {
+                        jac[(k, c)] += v;
+                    }
+                    for (a, v) in l.iter().enumerate().take(base.linear.len()) {
+                        linear[(a, c)] += v;
+                    }
+                }
+            }
+        }
+        // The twin had no tangent after all (a part `tangent_covers` cannot see from the
+        // model alone): those columns by differences too.
+        None if with_tangent => {
+            let (j, l) = jacobian_by_differences(problem, spec, th, base, which, &by_tangent, ties, fan)?;
+            for (n, &c) in by_tangent.iter().enumerate() {
+                jac.set_column(c, &j.column(n));
+                linear.set_column(c, &l.column(n));
+            }
+        }
+        None => {}
+    }
+    for outcome in outcomes {
+        let Ok((c, r, l, h)) = outcome? else {
+            continue;
+        };
         for (k, v) in r.iter().enumerate() {
             jac[(k, c)] = (v - r0[k]) / h;
         }
@@ -90,6 +166,35 @@ fn jacobian(
         }
     }
     Some((jac, linear))
+}
+
+/// [`jacobian`]'s columns `columns` (positions in `which`) by forward differences alone.
+#[allow(clippy::too_many_arguments)]
+fn jacobian_by_differences(
+    problem: &Problem,
+    spec: &ModelSpec,
+    th: &[f64],
+    base: &Evaluation,
+    which: &[usize],
+    columns: &[usize],
+    ties: &[(usize, usize)],
+    fan: &dyn Fan,
+) -> Option<(DMatrix<f64>, DMatrix<f64>)> {
+    let picked: Vec<usize> = columns.iter().map(|&c| which[c]).collect();
+    jacobian_with(problem, spec, th, base, &picked, ties, fan, false)
+}
+
+/// [`jacobian_with`] the twin's tangent where it has one.
+fn jacobian(
+    problem: &Problem,
+    spec: &ModelSpec,
+    th: &[f64],
+    base: &Evaluation,
+    which: &[usize],
+    ties: &[(usize, usize)],
+    fan: &dyn Fan,
+) -> Option<(DMatrix<f64>, DMatrix<f64>)> {
+    jacobian_with(problem, spec, th, base, which, ties, fan, true)
 }
 
 /// Options of one fit.
@@ -885,6 +990,58 @@ pub(crate) mod tests {
         )
         .expect("screen");
         (fitted, screened, problem.simulations())
+    }
+
+    /// The tangent's columns of the train residuals and of the closed-form coefficients are
+    /// their derivatives: against central differences of whole evaluations, for the gain,
+    /// the contact point and a material of two terms and a missing relaxation, beside a
+    /// channel delay and a drift in closed form. A parameter the tangent does not follow
+    /// (the delay) is not among its columns.
+    #[test]
+    fn the_tangents_columns_are_the_residuals_derivatives() {
+        let (problem, th0) = problem();
+        let spec = ModelSpec::nominal(MATERIAL_TERMS).with(&[
+            Effect::MissingRelaxation,
+            Effect::ChannelDelay,
+            Effect::ThermalDrift,
+        ]);
+        let mut th = th0.clone();
+        th.resize(spec.n_nonlinear(), 0.0);
+        let delay = spec.offset_of(Effect::ChannelDelay).expect("delay");
+        th[delay] = (0.7 / FS_HZ).ln();
+        let o = spec.offset_of(Effect::MissingRelaxation).expect("relaxation");
+        th[o] = th0[2] - 2.0;
+        th[o + 1] = 3e-3f64.ln();
+        let covers = problem.tangent_covers(&spec);
+        assert_eq!(covers.len(), 3 + 2 * MATERIAL_TERMS + 2);
+        assert!(!covers.contains(&delay));
+        let (eval, columns) = problem
+            .evaluate_with_tangent(&spec, &th, &covers)
+            .expect("a tangent");
+        assert_eq!(eval.chi2_train, problem.evaluate(&spec, &th).expect("eval").chi2_train);
+        let h = 1e-4;
+        for (&i, (column, linear)) in covers.iter().zip(&columns) {
+            let at = |h: f64| {
+                let mut t = th.clone();
+                t[i] += h;
+                problem.evaluate(&spec, &t).expect("eval")
+            };
+            let (plus, minus) = (at(h), at(-h));
+            let off = |tangent: &[f64], p: &[f64], m: &[f64]| {
+                let (mut off, mut size) = (0.0, 0.0);
+                for ((t, p), m) in tangent.iter().zip(p).zip(m) {
+                    let central = (p - m) / (2.0 * h);
+                    off += (central - t).powi(2);
+                    size += central.powi(2);
+                }
+                assert!(size > 0.0, "θ[{i}] moves nothing");
+                (off / size).sqrt()
+            };
+            let r = off(column, &plus.train_residuals, &minus.train_residuals);
+            let c = off(linear, &plus.linear, &minus.linear);
+            eprintln!("θ[{i}]: residuals {r:e}, coefficients {c:e}");
+            assert!(r < 1e-6 && c < 1e-6, "θ[{i}]: residuals {r:e}, coefficients {c:e}");
+        }
     }
 
     /// A coefficient's variance is its least-squares variance (scaled) plus what θ's

@@ -1645,6 +1645,142 @@ impl Problem {
         Some(sim)
     }
 
+    /// The θ indices whose Jacobian columns [`Problem::evaluate_with_tangent`] gives for
+    /// `spec` from one run of the twin's tangent ([`crate::twin::tangent`]): the gain, the
+    /// contact point and the whole material (the nominal terms and a missing relaxation's).
+    /// Empty where the twin has a part the tangent does not follow (an adhesive neck or a
+    /// long-range pull) or a closed-form column is built from the simulation (the drag, the
+    /// detector's nonlinearity, a wandering drift), whose own derivatives it does not carry.
+    pub fn tangent_covers(&self, spec: &ModelSpec) -> Vec<usize> {
+        let from_simulation = spec.effects.iter().any(|&e| match e {
+            Effect::HydrodynamicDrag | Effect::DetectorNonlinearity => true,
+            Effect::ThermalDrift => spec.drift == DriftForm::Wandering,
+            _ => false,
+        });
+        let adhesion_off_the_surface = spec.has(Effect::Adhesion)
+            && matches!(spec.adhesion, AdhesionForm::Neck | AdhesionForm::LongRange);
+        if from_simulation || adhesion_off_the_surface {
+            return Vec::new();
+        }
+        let mut covers = vec![0, 1, 2];
+        covers.extend((0..spec.terms).map(|i| spec.term_compliance(i)));
+        covers.extend((0..spec.terms).map(|i| spec.term_tau(i)));
+        if let Some(o) = spec.offset_of(Effect::MissingRelaxation) {
+            covers.extend([o, o + 1]);
+        }
+        covers
+    }
+
+    /// [`Problem::evaluate`], with the Jacobian columns of the parameters `which` (all in
+    /// [`Problem::tangent_covers`]) from the twin's forward sensitivities: for each, the
+    /// column of the train residuals (as [`Evaluation::train_residuals`]) and of the
+    /// closed-form coefficients (as [`Evaluation::linear`]), in `which`'s order. `None` where
+    /// the model cannot be simulated or its twin has no tangent.
+    ///
+    /// The coefficients are solved in closed form at every θ (variable projection), so a
+    /// column is the whitened deflection's derivative less its projection on the closed-form
+    /// columns, which do not move with θ here: `∂r = −P⊥·W·∂m/σ`, `∂c = −(AᵀA)⁻¹Aᵀ·W·∂m`.
+    #[allow(clippy::type_complexity)]
+    pub fn evaluate_with_tangent(
+        &self,
+        spec: &ModelSpec,
+        th: &[f64],
+        which: &[usize],
+    ) -> Option<(Evaluation, Vec<(Vec<f64>, Vec<f64>)>)> {
+        let covers = self.tangent_covers(spec);
+        if which.iter().any(|i| !covers.contains(i)) {
+            return None;
+        }
+        let (sim, deflection) = self.simulate_with_tangent(spec, th, which)?;
+        let mut columns = Vec::new();
+        let eval = self.evaluate_simulation(spec, th, sim, &deflection, &mut columns)?;
+        (columns.len() == which.len()).then_some((eval, columns))
+    }
+
+    /// [`Problem::simulate`] with the twin's tangent: also how the clean deflection (V)
+    /// moves with each parameter of `which` (θ indices in [`Problem::tangent_covers`]).
+    fn simulate_with_tangent(
+        &self,
+        spec: &ModelSpec,
+        th: &[f64],
+        which: &[usize],
+    ) -> Option<(Simulation, Vec<Vec<f64>>)> {
+        use crate::twin::tangent::TangentParam as P;
+        let cfg = self.start_simulation(spec, th)?;
+        let drive = self.twin_drive(spec, th);
+        let drive = &drive[..];
+        let mut twin = Twin::new(&cfg, self.fs_hz);
+        twin.settle(drive[0]);
+        let mut tangent = twin.tangent()?;
+        // θ's material terms in the order `material` lists them (the nominal ones, then a
+        // missing relaxation's); the twin's series sorts them slowest first, stably.
+        let mut terms: Vec<(usize, usize)> = (0..spec.terms)
+            .map(|i| (spec.term_compliance(i), spec.term_tau(i)))
+            .collect();
+        terms.extend(spec.offset_of(Effect::MissingRelaxation).map(|o| (o, o + 1)));
+        let mut sorted: Vec<usize> = (0..terms.len()).collect();
+        sorted.sort_by(|&a, &b| th[terms[b].1].total_cmp(&th[terms[a].1]));
+        let j0 = cfg.sample.material.j0_per_pa;
+        // Each θ index as a combination of the tangent's parameters. θ holds the
+        // instantaneous compliance J0 − ΣJᵢ, so a term's J moves J0 with it.
+        let mix = |i: usize| -> Vec<(P, f64)> {
+            if i == 0 {
+                return vec![(P::LnGain, 1.0)];
+            }
+            if i == 1 {
+                return vec![(P::ContactPoint, ZC_SCALE_NM)];
+            }
+            if i == 2 {
+                return vec![(P::LnLongTimeCompliance, th[2].exp() / j0)];
+            }
+            let at = |k: usize| sorted.iter().position(|&s| s == k).unwrap_or(k);
+            match terms.iter().position(|&(j, t)| j == i || t == i) {
+                Some(k) if terms[k].0 == i => vec![
+                    (P::LnTermCompliance(at(k)), 1.0),
+                    (P::LnLongTimeCompliance, th[i].exp() / j0),
+                ],
+                Some(k) => vec![(P::LnTermTau(at(k)), 1.0)],
+                None => Vec::new(),
+            }
+        };
+        let mixes: Vec<Vec<(usize, f64)>> = (which.iter())
+            .map(|&i| {
+                (mix(i).into_iter())
+                    .filter_map(|(p, w)| Some((tangent.index(p)?, w)))
+                    .collect()
+            })
+            .collect();
+        if mixes.iter().any(Vec::is_empty) {
+            return None;
+        }
+        let n = drive.len();
+        let mut sim = Simulation {
+            clean_v: Vec::with_capacity(n),
+            base_nm: Vec::with_capacity(n),
+            indentation_m: Vec::with_capacity(n),
+            lever_share: Vec::with_capacity(n),
+        };
+        let mut columns: Vec<Vec<f64>> = vec![Vec::with_capacity(n); which.len()];
+        for &d in drive {
+            let s = twin.step_with_tangent(d, &mut tangent);
+            if !s.deflection_v.is_finite() {
+                return None;
+            }
+            sim.clean_v.push(s.deflection_v);
+            sim.base_nm.push(s.truth.base_nm);
+            sim.indentation_m.push(s.truth.indentation_m);
+            sim.lever_share.push(s.truth.lever_share);
+            let dv = tangent.deflection_v();
+            for (column, mix) in columns.iter_mut().zip(&mixes) {
+                column.push(mix.iter().map(|&(q, w)| w * dv[q]).sum());
+            }
+        }
+        if columns.iter().flatten().any(|v| !v.is_finite()) {
+            return None;
+        }
+        Some((sim, columns))
+    }
+
     /// The twin of θ, counted as one simulation; `None` where θ is not finite or the twin
     /// not physical (its configuration invalid, or a tip the diagnosis may not fit).
     fn start_simulation(&self, spec: &ModelSpec, th: &[f64]) -> Option<TwinConfig> {
@@ -2049,6 +2185,21 @@ impl Problem {
     /// Evaluates θ: simulation, closed-form coefficients on the train samples, χ² on both sets.
     pub fn evaluate(&self, spec: &ModelSpec, th: &[f64]) -> Option<Evaluation> {
         let sim = self.simulate(spec, th)?;
+        self.evaluate_simulation(spec, th, sim, &[], &mut Vec::new())
+    }
+
+    /// [`Problem::evaluate`] of the simulation `sim` of θ; with `tangent` (how the clean
+    /// deflection moves with some parameters), each one's columns of the train residuals
+    /// and of the coefficients go to `columns` (see [`Problem::evaluate_with_tangent`]),
+    /// where every closed-form column is fixed.
+    fn evaluate_simulation(
+        &self,
+        spec: &ModelSpec,
+        th: &[f64],
+        sim: Simulation,
+        tangent: &[Vec<f64>],
+        columns: &mut Vec<(Vec<f64>, Vec<f64>)>,
+    ) -> Option<Evaluation> {
         let r0 = self.unexplained(&sim);
         let regs = self.regressors(spec, th, &sim);
         let fixed = self.fixed_columns();
@@ -2132,6 +2283,26 @@ impl Problem {
             }
         }
         let s = self.sigma_w_v;
+        if regs.iter().all(|r| r.fixed.is_some()) {
+            for dm in tangent {
+                // The residual moves by −∂m, its coefficients by −(AᵀA)⁻¹Aᵀ·W·∂m.
+                let wd = self.whiten(dm);
+                let atb = DVector::from_fn(m, |a, _| {
+                    -(scaled[a].iter().zip(train).fold(0.0, |s, (x, &i)| s + x * wd[i]))
+                });
+                let dc = chol.solve(&atb);
+                let dlinear: Vec<f64> = (0..m).map(|a| dc[a] / norms[a]).collect();
+                let column = (train.iter())
+                    .map(|&i| {
+                        let fitted: f64 = (dlinear.iter().zip(&regs))
+                            .map(|(c, r)| c * r.white[i])
+                            .sum();
+                        (-wd[i] - fitted) / s
+                    })
+                    .collect();
+                columns.push((column, dlinear));
+            }
+        }
         let train_residuals: Vec<f64> = self.train.iter().map(|&i| wres[i] / s).collect();
         let chi2_train: f64 = train_residuals.iter().map(|v| v * v).sum();
         let chi2_held: f64 = self.held.iter().map(|&i| (wres[i] / s).powi(2)).sum();
