@@ -55,12 +55,16 @@ fn jacobian_with(
     let r0 = &base.train_residuals;
     // The columns from the tangent: each parameter with every parameter tied to it covered.
     let covers = if use_tangent {
-        problem.tangent_covers(spec)
+        problem.tangent_covers(spec, th)
     } else {
         Vec::new()
     };
     let moves = |i: usize| {
-        std::iter::once(i).chain((ties.iter()).filter(move |&&(lead, _)| lead == i).map(|t| t.1))
+        std::iter::once(i).chain(
+            (ties.iter())
+                .filter(move |&&(lead, _)| lead == i)
+                .map(|t| t.1),
+        )
     };
     let by_tangent: Vec<usize> = (0..which.len())
         .filter(|&c| moves(which[c]).all(|i| covers.contains(&i)))
@@ -146,7 +150,8 @@ fn jacobian_with(
         // The twin had no tangent after all (a part `tangent_covers` cannot see from the
         // model alone): those columns by differences too.
         None if with_tangent => {
-            let (j, l) = jacobian_by_differences(problem, spec, th, base, which, &by_tangent, ties, fan)?;
+            let (j, l) =
+                jacobian_by_differences(problem, spec, th, base, which, &by_tangent, ties, fan)?;
             for (n, &c) in by_tangent.iter().enumerate() {
                 jac.set_column(c, &j.column(n));
                 linear.set_column(c, &l.column(n));
@@ -994,8 +999,9 @@ pub(crate) mod tests {
 
     /// The tangent's columns of the train residuals and of the closed-form coefficients are
     /// their derivatives: against central differences of whole evaluations, for the gain,
-    /// the contact point and a material of two terms and a missing relaxation, beside a
-    /// channel delay and a drift in closed form. A parameter the tangent does not follow
+    /// the contact point, a material of two terms and a missing relaxation, and the stage's
+    /// lag and damping (acting on the drive before the twin), beside a channel delay and a
+    /// drift in closed form. A parameter the tangent does not follow
     /// (the delay) is not among its columns.
     #[test]
     fn the_tangents_columns_are_the_residuals_derivatives() {
@@ -1009,16 +1015,26 @@ pub(crate) mod tests {
         th.resize(spec.n_nonlinear(), 0.0);
         let delay = spec.offset_of(Effect::ChannelDelay).expect("delay");
         th[delay] = (0.7 / FS_HZ).ln();
-        let o = spec.offset_of(Effect::MissingRelaxation).expect("relaxation");
+        let o = spec
+            .offset_of(Effect::MissingRelaxation)
+            .expect("relaxation");
         th[o] = th0[2] - 2.0;
         th[o + 1] = 3e-3f64.ln();
-        let covers = problem.tangent_covers(&spec);
-        assert_eq!(covers.len(), 3 + 2 * MATERIAL_TERMS + 2);
+        let covers = problem.tangent_covers(&spec, &th);
+        // The gain, contact point, material and missing relaxation, and the stage's lag
+        // and damping (this problem's start has a lag of a few samples).
+        assert_eq!(covers.len(), 3 + 2 * MATERIAL_TERMS + 2 + 2);
+        assert!(
+            covers.contains(&spec.actuator_lag()) && covers.contains(&(spec.actuator_lag() + 1))
+        );
         assert!(!covers.contains(&delay));
         let (eval, columns) = problem
             .evaluate_with_tangent(&spec, &th, &covers)
             .expect("a tangent");
-        assert_eq!(eval.chi2_train, problem.evaluate(&spec, &th).expect("eval").chi2_train);
+        assert_eq!(
+            eval.chi2_train,
+            problem.evaluate(&spec, &th).expect("eval").chi2_train
+        );
         let h = 1e-4;
         for (&i, (column, linear)) in covers.iter().zip(&columns) {
             let at = |h: f64| {
@@ -1040,7 +1056,10 @@ pub(crate) mod tests {
             let r = off(column, &plus.train_residuals, &minus.train_residuals);
             let c = off(linear, &plus.linear, &minus.linear);
             eprintln!("θ[{i}]: residuals {r:e}, coefficients {c:e}");
-            assert!(r < 1e-6 && c < 1e-6, "θ[{i}]: residuals {r:e}, coefficients {c:e}");
+            assert!(
+                r < 1e-6 && c < 1e-5,
+                "θ[{i}]: residuals {r:e}, coefficients {c:e}"
+            );
         }
     }
 

@@ -823,33 +823,87 @@ impl DriveSpectrum {
         d
     }
 
+    /// The response of `mode` read as `reading` at each bin of the spectrum.
+    fn responses(
+        &self,
+        mode: &ResonantMode,
+        fs_hz: f64,
+        reading: DriveReading,
+    ) -> impl Iterator<Item = rustfft::num_complex::Complex<f64>> + '_ {
+        use rustfft::num_complex::Complex;
+        let n = self.bins.len();
+        let ramped = (reading == DriveReading::Linear).then(|| RampedMode::new(mode, fs_hz));
+        let mode = *mode;
+        (0..n).map(move |k| {
+            // Bin k is frequency k·fs/n, or (k − n)·fs/n past the middle (negative).
+            let line = if 2 * k <= n {
+                k as f64
+            } else {
+                k as f64 - n as f64
+            };
+            let h = match &ramped {
+                None => mode_response(&mode, line * fs_hz / n as f64),
+                Some(r) => r.response(2.0 * std::f64::consts::PI * line / n as f64),
+            };
+            if 2 * k == n {
+                // The Nyquist line of an even record is real: keep the real part.
+                Complex::new(h.re, 0.0)
+            } else {
+                h
+            }
+        })
+    }
+
+    /// How the drive through the nominal actuator's mode of lag `lag_samples` and damping
+    /// phase `q_phase` ([`nominal_actuator_mode`]) moves with each of the two, read as
+    /// `reading`: for a fit's tangent ([`Problem::evaluate_with_tangent`]). The response's
+    /// derivative is taken line by line by central differences of the response alone
+    /// (step 1e-5, truncation ~1e-10), which is exact enough and costs no simulation;
+    /// the line taken out comes back lagged by `lag_samples` samples, which moves it by
+    /// `−step` per sample of lag. `None` where either is not a mode a step away.
+    pub(crate) fn derivatives(
+        &self,
+        lag_samples: f64,
+        q_phase: f64,
+        fs_hz: f64,
+        reading: DriveReading,
+    ) -> Option<[Vec<f64>; 2]> {
+        const STEP: f64 = 1e-5;
+        let n = self.bins.len();
+        let column = |plus: ResonantMode, minus: ResonantMode, line_rate: f64| {
+            let mut buf: Vec<_> = (self.bins.iter())
+                .zip(self.responses(&plus, fs_hz, reading))
+                .zip(self.responses(&minus, fs_hz, reading))
+                .map(|((b, hp), hm)| b * (hp - hm) / (2.0 * STEP))
+                .collect();
+            self.inverse.process(&mut buf);
+            (buf.iter())
+                .map(|c| c.re / n as f64 - self.step * line_rate)
+                .collect()
+        };
+        let mode = |lag: f64, q: f64| nominal_actuator_mode(lag, q, fs_hz);
+        Some([
+            column(
+                mode(lag_samples + STEP, q_phase)?,
+                mode(lag_samples - STEP, q_phase)?,
+                1.0,
+            ),
+            column(
+                mode(lag_samples, q_phase + STEP)?,
+                mode(lag_samples, q_phase - STEP)?,
+                0.0,
+            ),
+        ])
+    }
+
     /// The drive through `mode`, at `fs_hz`, read as `reading`, computed.
     fn filter(&self, mode: &ResonantMode, fs_hz: f64, reading: DriveReading) -> Vec<f64> {
         use rustfft::num_complex::Complex;
         let n = self.bins.len();
         let w0 = 2.0 * std::f64::consts::PI * mode.freq_hz;
-        let ramped = (reading == DriveReading::Linear).then(|| RampedMode::new(mode, fs_hz));
-        let mut buf: Vec<Complex<f64>> = self
-            .bins
-            .iter()
-            .enumerate()
-            .map(|(k, b)| {
-                // Bin k is frequency k·fs/n, or (k − n)·fs/n past the middle (negative).
-                let line = if 2 * k <= n {
-                    k as f64
-                } else {
-                    k as f64 - n as f64
-                };
-                let mut h = match &ramped {
-                    None => mode_response(mode, line * fs_hz / n as f64),
-                    Some(r) => r.response(2.0 * std::f64::consts::PI * line / n as f64),
-                };
-                if 2 * k == n {
-                    // The Nyquist line of an even record is real: keep the real part.
-                    h = Complex::new(h.re, 0.0);
-                }
-                b * h
-            })
+        let mut buf: Vec<Complex<f64>> = (self.bins.iter())
+            .zip(self.responses(mode, fs_hz, reading))
+            .map(|(b, h)| b * h)
             .collect();
         self.inverse.process(&mut buf);
         // The line's lag: a1 = 1/(ω0·Q) seconds, `step` per sample.
@@ -1646,12 +1700,13 @@ impl Problem {
     }
 
     /// The θ indices whose Jacobian columns [`Problem::evaluate_with_tangent`] gives for
-    /// `spec` from one run of the twin's tangent ([`crate::twin::tangent`]): the gain, the
-    /// contact point and the whole material (the nominal terms and a missing relaxation's).
-    /// Empty where the twin has a part the tangent does not follow (an adhesive neck or a
+    /// `spec` at θ from one run of the twin's tangent ([`crate::twin::tangent`]): the gain,
+    /// the contact point and the whole material (the nominal terms and a missing
+    /// relaxation's), and the nominal actuator's lag and damping where its mode acts on the
+    /// drive a step either way and the actuator is not hysteretic. Empty where the twin has a part the tangent does not follow (an adhesive neck or a
     /// long-range pull) or a closed-form column is built from the simulation (the drag, the
     /// detector's nonlinearity, a wandering drift), whose own derivatives it does not carry.
-    pub fn tangent_covers(&self, spec: &ModelSpec) -> Vec<usize> {
+    pub fn tangent_covers(&self, spec: &ModelSpec, th: &[f64]) -> Vec<usize> {
         let from_simulation = spec.effects.iter().any(|&e| match e {
             Effect::HydrodynamicDrag | Effect::DetectorNonlinearity => true,
             Effect::ThermalDrift => spec.drift == DriftForm::Wandering,
@@ -1668,7 +1723,28 @@ impl Problem {
         if let Some(o) = spec.offset_of(Effect::MissingRelaxation) {
             covers.extend([o, o + 1]);
         }
+        if self.drive_tangent(spec, th).is_some() {
+            let lag = spec.actuator_lag();
+            covers.extend([lag, lag + 1]);
+        }
         covers
+    }
+
+    /// How the drive the twin of θ receives moves with the nominal actuator's lag and
+    /// damping ([`DriveSpectrum::derivatives`]); `None` where the tangent does not follow
+    /// them (see [`Problem::tangent_covers`]).
+    fn drive_tangent(&self, spec: &ModelSpec, th: &[f64]) -> Option<[Vec<f64>; 2]> {
+        const STEP: f64 = 1e-5;
+        let lag = spec.actuator_lag();
+        let (l, q) = (*th.get(lag)?, *th.get(lag + 1)?);
+        if spec.has(Effect::PiezoHysteresis)
+            || nominal_actuator_mode(l - 2.0 * STEP, q, self.fs_hz).is_none()
+        {
+            return None;
+        }
+        self.drive_spectrum
+            .get_or_init(|| DriveSpectrum::new(&self.drive))
+            .derivatives(l, q, self.fs_hz, self.drive_reading)
     }
 
     /// [`Problem::evaluate`], with the Jacobian columns of the parameters `which` (all in
@@ -1687,7 +1763,7 @@ impl Problem {
         th: &[f64],
         which: &[usize],
     ) -> Option<(Evaluation, Vec<(Vec<f64>, Vec<f64>)>)> {
-        let covers = self.tangent_covers(spec);
+        let covers = self.tangent_covers(spec, th);
         if which.iter().any(|i| !covers.contains(i)) {
             return None;
         }
@@ -1711,13 +1787,25 @@ impl Problem {
         let drive = &drive[..];
         let mut twin = Twin::new(&cfg, self.fs_hz);
         twin.settle(drive[0]);
-        let mut tangent = twin.tangent()?;
+        let lag = spec.actuator_lag();
+        let drive_tangent = if which.contains(&lag) || which.contains(&(lag + 1)) {
+            Some(self.drive_tangent(spec, th)?)
+        } else {
+            None
+        };
+        let mut tangent = match &drive_tangent {
+            Some([a, b]) => twin.tangent_with_drive(&[a[0], b[0]])?,
+            None => twin.tangent()?,
+        };
         // θ's material terms in the order `material` lists them (the nominal ones, then a
         // missing relaxation's); the twin's series sorts them slowest first, stably.
         let mut terms: Vec<(usize, usize)> = (0..spec.terms)
             .map(|i| (spec.term_compliance(i), spec.term_tau(i)))
             .collect();
-        terms.extend(spec.offset_of(Effect::MissingRelaxation).map(|o| (o, o + 1)));
+        terms.extend(
+            spec.offset_of(Effect::MissingRelaxation)
+                .map(|o| (o, o + 1)),
+        );
         let mut sorted: Vec<usize> = (0..terms.len()).collect();
         sorted.sort_by(|&a, &b| th[terms[b].1].total_cmp(&th[terms[a].1]));
         let j0 = cfg.sample.material.j0_per_pa;
@@ -1732,6 +1820,9 @@ impl Problem {
             }
             if i == 2 {
                 return vec![(P::LnLongTimeCompliance, th[2].exp() / j0)];
+            }
+            if i == lag || i == lag + 1 {
+                return vec![(P::Drive(i - lag), 1.0)];
             }
             let at = |k: usize| sorted.iter().position(|&s| s == k).unwrap_or(k);
             match terms.iter().position(|&(j, t)| j == i || t == i) {
@@ -1761,8 +1852,11 @@ impl Problem {
             lever_share: Vec::with_capacity(n),
         };
         let mut columns: Vec<Vec<f64>> = vec![Vec::with_capacity(n); which.len()];
-        for &d in drive {
-            let s = twin.step_with_tangent(d, &mut tangent);
+        for (k, &d) in drive.iter().enumerate() {
+            let s = match &drive_tangent {
+                Some([a, b]) => twin.step_with_tangent_and_drive(d, &[a[k], b[k]], &mut tangent),
+                None => twin.step_with_tangent(d, &mut tangent),
+            };
             if !s.deflection_v.is_finite() {
                 return None;
             }
@@ -2288,7 +2382,10 @@ impl Problem {
                 // The residual moves by −∂m, its coefficients by −(AᵀA)⁻¹Aᵀ·W·∂m.
                 let wd = self.whiten(dm);
                 let atb = DVector::from_fn(m, |a, _| {
-                    -(scaled[a].iter().zip(train).fold(0.0, |s, (x, &i)| s + x * wd[i]))
+                    -(scaled[a]
+                        .iter()
+                        .zip(train)
+                        .fold(0.0, |s, (x, &i)| s + x * wd[i]))
                 });
                 let dc = chol.solve(&atb);
                 let dlinear: Vec<f64> = (0..m).map(|a| dc[a] / norms[a]).collect();

@@ -696,6 +696,17 @@ impl Twin {
     /// (see [`tangent`]): an adhesive neck, a long-range adhesion, the lever's mode, or a
     /// detector that does more than delay.
     pub fn tangent(&self) -> Option<Tangent> {
+        self.tangent_with_drive(&[])
+    }
+
+    /// [`Self::tangent`] carrying also `drive_params` parameters that move the drive, whose
+    /// derivatives at its first sample are `first` (one per parameter): stepped by
+    /// [`Self::step_with_tangent_and_drive`]. `None` also where the actuator is hysteretic
+    /// and there are drive parameters (its response is not linear in the drive).
+    pub fn tangent_with_drive(&self, first: &[f64]) -> Option<Tangent> {
+        if !first.is_empty() && self.cfg.actuator.hysteresis.is_some() {
+            return None;
+        }
         let s = &self.cfg.sample;
         let delay_only = DetectorConfig {
             delay_s: 0.0,
@@ -706,13 +717,35 @@ impl Twin {
             && self.lever.is_none()
             && delay_only
             && self.slot == SampleSlot::Soft;
-        follows.then(|| Tangent::new(&self.material, &self.cfg.detector, self.fs_hz))
+        follows.then(|| {
+            let mut t = Tangent::new(
+                &self.material,
+                &self.cfg.detector,
+                &self.cfg.actuator,
+                first.len(),
+                self.fs_hz,
+            );
+            t.settle_drive(first);
+            t
+        })
     }
 
     /// [`Self::step`], carrying `tangent` (from [`Self::tangent`], stepped with every sample
     /// since) along: afterwards [`Tangent::deflection_v`] holds how this sample's reading
     /// moves with each parameter.
     pub fn step_with_tangent(&mut self, v: f64, tangent: &mut Tangent) -> TwinSample {
+        self.step_with_tangent_and_drive(v, &[], tangent)
+    }
+
+    /// [`Self::step_with_tangent`] where the drive `v` moves with the tangent's drive
+    /// parameters by `dv` (one per parameter, [`Self::tangent_with_drive`]).
+    pub fn step_with_tangent_and_drive(
+        &mut self,
+        v: f64,
+        dv: &[f64],
+        tangent: &mut Tangent,
+    ) -> TwinSample {
+        tangent.step_drive(dv);
         let sample = self.step_inner(v, Some(&mut *tangent));
         tangent.read_out(self.cfg.cantilever.deflection_sensitivity_nm_per_v);
         sample

@@ -18,13 +18,19 @@
 //! - the contact's input `u = cf·(K·d + F)` moves as `cf·K·∂d`, and feeds the state's
 //!   derivatives for the next sample; out of contact `u = 0` and the free lever's deflection
 //!   (`F_ext/K`) does not move;
-//! - the detector's delay is linear: each derivative goes through a delay line of its own.
+//! - the detector's delay is linear: each derivative goes through a delay line of its own;
+//! - a parameter that moves the drive itself (the diagnosis's nominal actuator dynamics act
+//!   on the drive before the twin) moves the base through the actuator, which is linear
+//!   without hysteresis: its derivative goes through an actuator of its own, at rest at
+//!   zero, as the caller hands it in ([`super::Twin::step_with_tangent_and_drive`]).
 //!
 //! A contact gained or lost between samples is a jump no derivative sees; so are the
-//! adhesive neck and the long-range pull, the lever's mode, and a detector with noise,
-//! nonlinearity or quantisation: [`super::Twin::tangent`] gives no tangent for a twin with any
-//! of them, and its caller takes finite differences there.
+//! adhesive neck and the long-range pull, the lever's mode, a detector with noise,
+//! nonlinearity or quantisation, and a hysteretic actuator under a drive parameter:
+//! [`super::Twin::tangent`] gives no tangent for a twin with any of them, and its caller
+//! takes finite differences there.
 
+use super::actuator::{Actuator, ActuatorConfig};
 use super::detector::{Detector, DetectorConfig};
 use super::material::{MaterialSensitivity, MaterialState};
 
@@ -42,6 +48,8 @@ pub enum TangentParam {
     ContactPoint,
     /// ln of the actuator's gain.
     LnGain,
+    /// A parameter of the drive `j` ([`super::Twin::step_with_tangent_and_drive`]).
+    Drive(usize),
 }
 
 /// The sensitivities of a running twin; see the module's docs.
@@ -59,20 +67,38 @@ pub struct Tangent {
     deflection_v: Vec<f64>,
     /// One delay line per parameter, where the detector delays.
     delays: Vec<Detector>,
+    /// One actuator per drive parameter, stepping the drive's derivative.
+    drive_actuators: Vec<Actuator>,
+    /// The base's derivatives in the drive parameters this sample, nm.
+    drive_base_nm: Vec<f64>,
 }
 
 impl Tangent {
     /// All derivatives zero, for a twin at rest whose material is `material`, whose detector
     /// is `detector` (only its delay is read) and that runs at `fs_hz`.
-    pub(super) fn new(material: &MaterialState, detector: &DetectorConfig, fs_hz: f64) -> Self {
-        let sens = MaterialSensitivity::new(material, 2);
+    ///
+    /// `drive_params` parameters of the drive go through copies of `actuator` (which must
+    /// have no hysteresis: its response is then linear in the drive).
+    pub(super) fn new(
+        material: &MaterialState,
+        detector: &DetectorConfig,
+        actuator: &ActuatorConfig,
+        drive_params: usize,
+        fs_hz: f64,
+    ) -> Self {
+        debug_assert!(drive_params == 0 || actuator.hysteresis.is_none());
+        let sens = MaterialSensitivity::new(material, 2 + drive_params);
         let params = sens.params();
         let delay = DetectorConfig {
             delay_s: detector.delay_s,
             ..DetectorConfig::default()
         };
+        let mut at_rest = Actuator::new(actuator, fs_hz);
+        at_rest.settle(0.0);
         Self {
-            terms: (params - 3) / 2,
+            terms: (params - 3 - drive_params) / 2,
+            drive_actuators: vec![at_rest; drive_params],
+            drive_base_nm: vec![0.0; drive_params],
             affine: vec![(0.0, 0.0); params],
             du: vec![0.0; params],
             deflection_m: vec![0.0; params],
@@ -101,7 +127,8 @@ impl Tangent {
             q if q <= m => TangentParam::LnTermCompliance(q - 1),
             q if q <= 2 * m => TangentParam::LnTermTau(q - 1 - m),
             q if q == 2 * m + 1 => TangentParam::ContactPoint,
-            _ => TangentParam::LnGain,
+            q if q == 2 * m + 2 => TangentParam::LnGain,
+            q => TangentParam::Drive(q - 2 * m - 3),
         }
     }
 
@@ -114,6 +141,25 @@ impl Tangent {
             TangentParam::LnTermTau(i) => (i < m).then_some(1 + m + i),
             TangentParam::ContactPoint => Some(2 * m + 1),
             TangentParam::LnGain => Some(2 * m + 2),
+            TangentParam::Drive(j) => (j < self.drive_actuators.len()).then_some(2 * m + 3 + j),
+        }
+    }
+
+    /// Puts the drive's derivatives at rest at `dv` (one per drive parameter), as the twin
+    /// settles at the drive's first sample.
+    pub(super) fn settle_drive(&mut self, dv: &[f64]) {
+        for (a, &d) in self.drive_actuators.iter_mut().zip(dv) {
+            a.settle(d);
+        }
+    }
+
+    /// Steps the drive's derivatives `dv` (one per drive parameter) through the actuators.
+    pub(super) fn step_drive(&mut self, dv: &[f64]) {
+        for ((a, &d), out) in (self.drive_actuators.iter_mut())
+            .zip(dv)
+            .zip(&mut self.drive_base_nm)
+        {
+            *out = a.step(d);
         }
     }
 
@@ -122,6 +168,7 @@ impl Tangent {
         match self.param(q) {
             TangentParam::ContactPoint => -1e-9,
             TangentParam::LnGain => base_nm * 1e-9,
+            TangentParam::Drive(j) => self.drive_base_nm[j] * 1e-9,
             _ => 0.0,
         }
     }

@@ -662,7 +662,8 @@ fn a_creeping_film_stiffens_inside_the_hereditary_integral() {
 /// whole runs, for a two-term material under a filmed sphere with DMT adhesion, behind an
 /// actuator with creep and a mode and a detector that delays by a fraction of a sample.
 /// The drive approaches, presses in and plays two lines, and retracts off the surface, so
-/// contact is gained and lost once each.
+/// contact is gained and lost once each; a parameter of the drive (the fast line's
+/// amplitude) goes through the actuator.
 #[test]
 fn a_tangents_columns_are_the_readings_derivatives() {
     use super::actuator::{Creep, ResonantMode};
@@ -676,6 +677,7 @@ fn a_tangents_columns_are_the_readings_derivatives() {
         TangentParam::LnTermTau(1),
         TangentParam::ContactPoint,
         TangentParam::LnGain,
+        TangentParam::Drive(0),
     ];
     let config = |moved: Option<(TangentParam, f64)>| {
         let by = |p: TangentParam| match moved {
@@ -715,12 +717,26 @@ fn a_tangents_columns_are_the_readings_derivatives() {
         cfg
     };
     let n = 3000;
-    let drive = |k: usize| {
+    // The fast line, per unit of the drive's parameter.
+    let line = |k: usize| 0.05 * (std::f64::consts::TAU * 310.0 * k as f64 / fs).sin();
+    let drive_moved = |k: usize, by: f64| {
         let t = k as f64 / fs;
-        let tau = std::f64::consts::TAU;
         // 0 → 1.8 V over 0.25 s, two lines for 0.4 s, back to 0 V.
         let press = (t / 0.25).min(1.0) * 1.8 - ((t - 0.65) / 0.05).clamp(0.0, 1.0) * 1.8;
-        press + 0.1 * (tau * 7.0 * t).sin() + 0.05 * (tau * 310.0 * t).sin()
+        press + 0.1 * (std::f64::consts::TAU * 7.0 * t).sin() + (1.0 + by) * line(k)
+    };
+    let drive = |k: usize| drive_moved(k, 0.0);
+    let run_moved = |moved: Option<(TangentParam, f64)>| -> Vec<f64> {
+        let cfg = config(moved);
+        let by = match moved {
+            Some((TangentParam::Drive(0), h)) => h,
+            _ => 0.0,
+        };
+        let mut twin = Twin::new(&cfg, fs);
+        twin.settle(drive_moved(0, by));
+        (0..n)
+            .map(|k| twin.step(drive_moved(k, by)).deflection_v)
+            .collect()
     };
     let run = |cfg: &TwinConfig| -> Vec<f64> {
         let mut twin = Twin::new(cfg, fs);
@@ -729,13 +745,15 @@ fn a_tangents_columns_are_the_readings_derivatives() {
     };
     let mut twin = Twin::new(&config(None), fs);
     twin.settle(drive(0));
-    let mut tangent = twin.tangent().expect("this twin has a tangent");
+    let mut tangent = twin
+        .tangent_with_drive(&[line(0)])
+        .expect("this twin has a tangent");
     assert_eq!(tangent.params(), params.len());
     let mut columns = vec![Vec::with_capacity(n); params.len()];
     let mut plain = Vec::with_capacity(n);
     let (mut touched, mut left) = (false, false);
     for k in 0..n {
-        let s = twin.step_with_tangent(drive(k), &mut tangent);
+        let s = twin.step_with_tangent_and_drive(drive(k), &[line(k)], &mut tangent);
         touched |= s.truth.in_contact;
         left |= touched && !s.truth.in_contact;
         plain.push(s.deflection_v);
@@ -750,7 +768,7 @@ fn a_tangents_columns_are_the_readings_derivatives() {
     for &p in &params {
         let q = tangent.index(p).expect("carried");
         assert_eq!(tangent.param(q), p);
-        let (plus, minus) = (run(&config(Some((p, h)))), run(&config(Some((p, -h)))));
+        let (plus, minus) = (run_moved(Some((p, h))), run_moved(Some((p, -h))));
         let (mut off, mut size) = (0.0, 0.0);
         for k in 0..n {
             let central = (plus[k] - minus[k]) / (2.0 * h);
