@@ -843,7 +843,7 @@ pub fn orthonormal_basis(j: &DMatrix<f64>) -> DMatrix<f64> {
 #[cfg(test)]
 pub(crate) mod tests {
     use super::super::corpus::{nominal_twin, protocol_drive, simulate, FS_HZ, MATERIAL_TERMS};
-    use super::super::model::{Effect, ModelSpec, Problem, TipForm};
+    use super::super::model::{DriftForm, Effect, ModelSpec, Problem, TipForm};
     use super::*;
     use crate::fan::{tests::Reversed, Serial};
 
@@ -1028,19 +1028,41 @@ pub(crate) mod tests {
             covers.contains(&spec.actuator_lag()) && covers.contains(&(spec.actuator_lag() + 1))
         );
         assert!(!covers.contains(&delay));
+        check_tangent(&problem, &spec, &th, &covers);
+        // A DMT adhesion, a surface drifting along a parabola and a film.
+        let mut spec = ModelSpec::nominal(MATERIAL_TERMS).with(&[
+            Effect::Adhesion,
+            Effect::ThermalDrift,
+            Effect::SubstrateEffect,
+        ]);
+        spec.drift = DriftForm::Surface;
+        let mut th = th0.clone();
+        th.resize(spec.n_nonlinear(), 0.0);
+        th[spec.offset_of(Effect::Adhesion).expect("adhesion")] = 0.3f64.ln();
+        let o = spec.offset_of(Effect::ThermalDrift).expect("drift");
+        th[o] = 2.0;
+        th[o + 1] = -0.5;
+        th[spec.offset_of(Effect::SubstrateEffect).expect("film")] = 1500f64.ln();
+        let covers = problem.tangent_covers(&spec, &th);
+        assert_eq!(covers.len(), 3 + 2 * MATERIAL_TERMS + 2 + 4);
+        check_tangent(&problem, &spec, &th, &covers);
+    }
+
+    /// Compares the tangent's columns of `covers` with central differences.
+    fn check_tangent(problem: &Problem, spec: &ModelSpec, th: &[f64], covers: &[usize]) {
         let (eval, columns) = problem
-            .evaluate_with_tangent(&spec, &th, &covers)
+            .evaluate_with_tangent(spec, th, covers)
             .expect("a tangent");
         assert_eq!(
             eval.chi2_train,
-            problem.evaluate(&spec, &th).expect("eval").chi2_train
+            problem.evaluate(spec, th).expect("eval").chi2_train
         );
         let h = 1e-4;
         for (&i, (column, linear)) in covers.iter().zip(&columns) {
             let at = |h: f64| {
-                let mut t = th.clone();
+                let mut t = th.to_vec();
                 t[i] += h;
-                problem.evaluate(&spec, &t).expect("eval")
+                problem.evaluate(spec, &t).expect("eval")
             };
             let (plus, minus) = (at(h), at(-h));
             let off = |tangent: &[f64], p: &[f64], m: &[f64]| {

@@ -1362,6 +1362,30 @@ pub struct Problem {
     pub wander_span_s: (f64, f64),
 }
 
+/// The effects' parameters the twin's tangent follows in `spec`: each one's index in θ, the
+/// tangent's parameter, and how much that moves per unit of θ. The DMT adhesion's pull-off
+/// force, a surface drift's rate and curvature, and a film's thickness; a missing
+/// relaxation's term is the material's ([`Problem::tangent_covers`]).
+fn effect_tangents(spec: &ModelSpec) -> Vec<(usize, crate::twin::tangent::TangentParam, f64)> {
+    use crate::twin::tangent::TangentParam as P;
+    let mut out = Vec::new();
+    if let Some(o) = spec.offset_of(Effect::Adhesion) {
+        if spec.adhesion == AdhesionForm::Dmt {
+            out.push((o, P::LnAdhesion, 1.0));
+        }
+    }
+    if let Some(o) = spec.offset_of(Effect::ThermalDrift) {
+        if spec.drift.moves_surface() {
+            out.push((o, P::DriftRate, SURFACE_DRIFT_SCALE_NM_PER_S));
+            out.push((o + 1, P::DriftCurvature, SURFACE_DRIFT_SCALE_NM_PER_S));
+        }
+    }
+    if let Some(o) = spec.offset_of(Effect::SubstrateEffect) {
+        out.push((o, P::LnFilmThickness, 1.0));
+    }
+    out
+}
+
 /// The power-law tip's reference depth while none is set, nm.
 pub const DEFAULT_TIP_REFERENCE_DEPTH_NM: f64 = 100.0;
 
@@ -1727,6 +1751,7 @@ impl Problem {
             let lag = spec.actuator_lag();
             covers.extend([lag, lag + 1]);
         }
+        covers.extend(effect_tangents(spec).iter().map(|&(i, ..)| i));
         covers
     }
 
@@ -1793,10 +1818,17 @@ impl Problem {
         } else {
             None
         };
-        let mut tangent = match &drive_tangent {
-            Some([a, b]) => twin.tangent_with_drive(&[a[0], b[0]])?,
-            None => twin.tangent()?,
+        let effects = effect_tangents(spec);
+        let mut others = vec![P::ContactPoint, P::LnGain];
+        others.extend(effects.iter().map(|&(_, p, _)| p));
+        let first = match &drive_tangent {
+            Some([a, b]) => {
+                others.extend([P::Drive(0), P::Drive(1)]);
+                vec![a[0], b[0]]
+            }
+            None => Vec::new(),
         };
+        let mut tangent = twin.tangent_of(&others, &first)?;
         // θ's material terms in the order `material` lists them (the nominal ones, then a
         // missing relaxation's); the twin's series sorts them slowest first, stably.
         let mut terms: Vec<(usize, usize)> = (0..spec.terms)
@@ -1823,6 +1855,9 @@ impl Problem {
             }
             if i == lag || i == lag + 1 {
                 return vec![(P::Drive(i - lag), 1.0)];
+            }
+            if let Some(&(_, p, w)) = effects.iter().find(|&&(j, ..)| j == i) {
+                return vec![(p, w)];
             }
             let at = |k: usize| sorted.iter().position(|&s| s == k).unwrap_or(k);
             match terms.iter().position(|&(j, t)| j == i || t == i) {

@@ -696,15 +696,32 @@ impl Twin {
     /// (see [`tangent`]): an adhesive neck, a long-range adhesion, the lever's mode, or a
     /// detector that does more than delay.
     pub fn tangent(&self) -> Option<Tangent> {
-        self.tangent_with_drive(&[])
+        use tangent::TangentParam as P;
+        self.tangent_of(&[P::ContactPoint, P::LnGain], &[])
     }
 
-    /// [`Self::tangent`] carrying also `drive_params` parameters that move the drive, whose
-    /// derivatives at its first sample are `first` (one per parameter): stepped by
-    /// [`Self::step_with_tangent_and_drive`]. `None` also where the actuator is hysteretic
-    /// and there are drive parameters (its response is not linear in the drive).
-    pub fn tangent_with_drive(&self, first: &[f64]) -> Option<Tangent> {
+    /// The forward sensitivities in the material's parameters and `others`, for a drive
+    /// whose derivatives in the drive's parameters among them (`TangentParam::Drive(j)`,
+    /// `j = 0, 1, …` in order) are `first` at its first sample: stepped by
+    /// [`Self::step_with_tangent_and_drive`]. `None` where [`Self::tangent`] is, and also
+    /// where the actuator is hysteretic and there are drive parameters (its response is
+    /// not linear in the drive), or a parameter is asked for that this twin does not have
+    /// (an adhesion, a drift or a film it is without).
+    pub fn tangent_of(&self, others: &[tangent::TangentParam], first: &[f64]) -> Option<Tangent> {
+        use tangent::TangentParam as P;
         if !first.is_empty() && self.cfg.actuator.hysteresis.is_some() {
+            return None;
+        }
+        let s = &self.cfg.sample;
+        let has = |p: &P| match p {
+            P::LnAdhesion => s.adhesion_nn.is_some_and(|f| f > 0.0),
+            P::DriftRate => s.surface_drift_nm_per_s.is_some(),
+            P::DriftCurvature => s.surface_drift_curvature_nm_per_s2.is_some(),
+            P::LnFilmThickness => s.thickness_nm.is_some(),
+            P::Drive(j) => *j < first.len(),
+            _ => true,
+        };
+        if !others.iter().all(has) {
             return None;
         }
         let s = &self.cfg.sample;
@@ -722,7 +739,7 @@ impl Twin {
                 &self.material,
                 &self.cfg.detector,
                 &self.cfg.actuator,
-                first.len(),
+                others,
                 self.fs_hz,
             );
             t.settle_drive(first);
@@ -738,7 +755,7 @@ impl Twin {
     }
 
     /// [`Self::step_with_tangent`] where the drive `v` moves with the tangent's drive
-    /// parameters by `dv` (one per parameter, [`Self::tangent_with_drive`]).
+    /// parameters by `dv` (one per parameter, [`Self::tangent_of`]).
     pub fn step_with_tangent_and_drive(
         &mut self,
         v: f64,
@@ -1069,23 +1086,49 @@ impl Twin {
             }
             self.in_contact = touching;
             if let Some(t) = tangent {
+                use tangent::TangentParam as P;
                 // ∂d = −g_θ/g_d in contact (see `tangent`); the free lever does not move.
                 t.material.affine(&self.material, &mut t.affine);
+                let t_s = self.elapsed_samples as f64 / self.fs_hz;
+                // The filmed shape's move with ln thickness: f(h)·∂factor/∂χ·(−χ).
+                let film_move = match (root_slope, self.cfg.sample.thickness_nm) {
+                    (Some(_), Some(th)) if t.has_film() && gap_m - d_m > 0.0 => {
+                        let h = gap_m - d_m;
+                        let chi = self.shape.contact_radius_and_slope(h).0 / (th * 1e-9);
+                        let dfactor_dchi = c1
+                            + (2.0 * c2) * chi
+                            + (3.0 * c3) * chi.powi(2)
+                            + (4.0 * c4) * chi.powi(3);
+                        self.shape.y_and_slope(h).0 * dfactor_dchi * -chi
+                    }
+                    _ => 0.0,
+                };
                 for q in 0..t.params() {
+                    let p = t.param(q);
+                    // The contact's net force moves with the adhesion's pull-off force.
+                    let dnet = if p == P::LnAdhesion { f_adh_n } else { 0.0 };
                     let dd = match root_slope {
                         Some(slope) => {
                             // g_d = −f′(h) − α·cf·K: the filmed shape's slope from the solve's.
                             let filmed_slope = -slope - alpha * cf * k_si;
                             let (dalpha, dbeta) = t.affine[q];
-                            let g_q = filmed_slope * t.gap_derivative_m(q, base_nm)
+                            let mut g_q = filmed_slope * t.gap_derivative_m(q, base_nm, t_s)
                                 - dalpha * cf * (k_si * d_m + f_net_n)
+                                - alpha * cf * dnet
                                 - dbeta;
+                            if p == P::LnFilmThickness {
+                                g_q += film_move;
+                            }
                             -g_q / slope
                         }
                         None => 0.0,
                     };
                     t.deflection_m[q] = dd;
-                    t.du[q] = cf * k_si * dd;
+                    t.du[q] = if root_slope.is_some() {
+                        cf * (k_si * dd + dnet)
+                    } else {
+                        0.0
+                    };
                 }
                 t.material.commit(&self.material, u, &t.du);
             }

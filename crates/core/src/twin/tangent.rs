@@ -50,13 +50,22 @@ pub enum TangentParam {
     LnGain,
     /// A parameter of the drive `j` ([`super::Twin::step_with_tangent_and_drive`]).
     Drive(usize),
+    /// ln of the DMT adhesion's pull-off force (`sample.adhesion_nn`).
+    LnAdhesion,
+    /// The surface drift's rate, nm/s (`sample.surface_drift_nm_per_s`).
+    DriftRate,
+    /// The surface drift's curvature, nm/s² (`sample.surface_drift_curvature_nm_per_s2`).
+    DriftCurvature,
+    /// ln of the film's thickness (`sample.thickness_nm`).
+    LnFilmThickness,
 }
 
 /// The sensitivities of a running twin; see the module's docs.
 #[derive(Debug, Clone)]
 pub struct Tangent {
     pub(super) material: MaterialSensitivity,
-    terms: usize,
+    /// Every parameter, in order: the material's, then the others.
+    params: Vec<TangentParam>,
     /// `(∂α, ∂β)` of this sample, per parameter (scratch).
     pub(super) affine: Vec<(f64, f64)>,
     /// `∂u` of this sample, per parameter (scratch).
@@ -75,20 +84,30 @@ pub struct Tangent {
 
 impl Tangent {
     /// All derivatives zero, for a twin at rest whose material is `material`, whose detector
-    /// is `detector` (only its delay is read) and that runs at `fs_hz`.
+    /// is `detector` (only its delay is read) and that runs at `fs_hz`; it carries the
+    /// material's parameters and `others` (none of the material's).
     ///
-    /// `drive_params` parameters of the drive go through copies of `actuator` (which must
-    /// have no hysteresis: its response is then linear in the drive).
+    /// The drive's parameters among `others` (`Drive(0)`, `Drive(1)`, … in order) go through
+    /// copies of `actuator` (which must have no hysteresis: its response is then linear in
+    /// the drive).
     pub(super) fn new(
         material: &MaterialState,
         detector: &DetectorConfig,
         actuator: &ActuatorConfig,
-        drive_params: usize,
+        others: &[TangentParam],
         fs_hz: f64,
     ) -> Self {
+        let drive_params = (others.iter())
+            .filter(|p| matches!(p, TangentParam::Drive(_)))
+            .count();
         debug_assert!(drive_params == 0 || actuator.hysteresis.is_none());
-        let sens = MaterialSensitivity::new(material, 2 + drive_params);
+        let sens = MaterialSensitivity::new(material, others.len());
         let params = sens.params();
+        let terms = (params - 1 - others.len()) / 2;
+        let mut all = vec![TangentParam::LnLongTimeCompliance];
+        all.extend((0..terms).map(TangentParam::LnTermCompliance));
+        all.extend((0..terms).map(TangentParam::LnTermTau));
+        all.extend_from_slice(others);
         let delay = DetectorConfig {
             delay_s: detector.delay_s,
             ..DetectorConfig::default()
@@ -96,7 +115,7 @@ impl Tangent {
         let mut at_rest = Actuator::new(actuator, fs_hz);
         at_rest.settle(0.0);
         Self {
-            terms: (params - 3 - drive_params) / 2,
+            params: all,
             drive_actuators: vec![at_rest; drive_params],
             drive_base_nm: vec![0.0; drive_params],
             affine: vec![(0.0, 0.0); params],
@@ -121,28 +140,12 @@ impl Tangent {
 
     /// The parameters, in the order [`Self::deflection_v`] gives them.
     pub fn param(&self, q: usize) -> TangentParam {
-        let m = self.terms;
-        match q {
-            0 => TangentParam::LnLongTimeCompliance,
-            q if q <= m => TangentParam::LnTermCompliance(q - 1),
-            q if q <= 2 * m => TangentParam::LnTermTau(q - 1 - m),
-            q if q == 2 * m + 1 => TangentParam::ContactPoint,
-            q if q == 2 * m + 2 => TangentParam::LnGain,
-            q => TangentParam::Drive(q - 2 * m - 3),
-        }
+        self.params[q]
     }
 
     /// The index of `p`, if carried.
     pub fn index(&self, p: TangentParam) -> Option<usize> {
-        let m = self.terms;
-        match p {
-            TangentParam::LnLongTimeCompliance => Some(0),
-            TangentParam::LnTermCompliance(i) => (i < m).then_some(1 + i),
-            TangentParam::LnTermTau(i) => (i < m).then_some(1 + m + i),
-            TangentParam::ContactPoint => Some(2 * m + 1),
-            TangentParam::LnGain => Some(2 * m + 2),
-            TangentParam::Drive(j) => (j < self.drive_actuators.len()).then_some(2 * m + 3 + j),
-        }
+        self.params.iter().position(|&q| q == p)
     }
 
     /// Puts the drive's derivatives at rest at `dv` (one per drive parameter), as the twin
@@ -163,14 +166,23 @@ impl Tangent {
         }
     }
 
-    /// How the gap (m) moves with parameter `q` at base position `base_nm`.
-    pub(super) fn gap_derivative_m(&self, q: usize, base_nm: f64) -> f64 {
-        match self.param(q) {
+    /// How the gap (m) moves with parameter `q` at base position `base_nm`, `t_s` after the
+    /// twin settled.
+    pub(super) fn gap_derivative_m(&self, q: usize, base_nm: f64, t_s: f64) -> f64 {
+        match self.params[q] {
             TangentParam::ContactPoint => -1e-9,
             TangentParam::LnGain => base_nm * 1e-9,
             TangentParam::Drive(j) => self.drive_base_nm[j] * 1e-9,
+            // The surface moves toward the tip by `v·t + c·t²`.
+            TangentParam::DriftRate => t_s * 1e-9,
+            TangentParam::DriftCurvature => t_s * t_s * 1e-9,
             _ => 0.0,
         }
+    }
+
+    /// Whether a parameter moves the film's factor (the caller then works out its slope).
+    pub(super) fn has_film(&self) -> bool {
+        self.params.contains(&TangentParam::LnFilmThickness)
     }
 
     /// The last sample's derivatives of the detector's reading, V, one per parameter.

@@ -660,7 +660,8 @@ fn a_creeping_film_stiffens_inside_the_hereditary_integral() {
 
 /// The tangent's columns are the reading's derivatives: against central differences of
 /// whole runs, for a two-term material under a filmed sphere with DMT adhesion, behind an
-/// actuator with creep and a mode and a detector that delays by a fraction of a sample.
+/// actuator with creep and a mode and a detector that delays by a fraction of a sample, on
+/// a surface drifting along a parabola.
 /// The drive approaches, presses in and plays two lines, and retracts off the surface, so
 /// contact is gained and lost once each; a parameter of the drive (the fast line's
 /// amplitude) goes through the actuator.
@@ -678,6 +679,10 @@ fn a_tangents_columns_are_the_readings_derivatives() {
         TangentParam::ContactPoint,
         TangentParam::LnGain,
         TangentParam::Drive(0),
+        TangentParam::LnAdhesion,
+        TangentParam::DriftRate,
+        TangentParam::DriftCurvature,
+        TangentParam::LnFilmThickness,
     ];
     let config = |moved: Option<(TangentParam, f64)>| {
         let by = |p: TangentParam| match moved {
@@ -710,8 +715,11 @@ fn a_tangents_columns_are_the_readings_derivatives() {
             ],
         );
         cfg.sample.contact_point_nm = 100.0 + by(TangentParam::ContactPoint);
-        cfg.sample.adhesion_nn = Some(0.5);
-        cfg.sample.thickness_nm = Some(400.0);
+        cfg.sample.adhesion_nn = Some(0.5 * by(TangentParam::LnAdhesion).exp());
+        cfg.sample.thickness_nm = Some(400.0 * by(TangentParam::LnFilmThickness).exp());
+        cfg.sample.surface_drift_nm_per_s = Some(20.0 + by(TangentParam::DriftRate));
+        cfg.sample.surface_drift_curvature_nm_per_s2 =
+            Some(-8.0 + by(TangentParam::DriftCurvature));
         cfg.detector.delay_s = 0.3 / fs;
         assert!(cfg.validate("").is_empty(), "{:?}", cfg.validate(""));
         cfg
@@ -746,7 +754,7 @@ fn a_tangents_columns_are_the_readings_derivatives() {
     let mut twin = Twin::new(&config(None), fs);
     twin.settle(drive(0));
     let mut tangent = twin
-        .tangent_with_drive(&[line(0)])
+        .tangent_of(&params[5..], &[line(0)])
         .expect("this twin has a tangent");
     assert_eq!(tangent.params(), params.len());
     let mut columns = vec![Vec::with_capacity(n); params.len()];
