@@ -601,7 +601,17 @@ pub struct DriveSpectrum {
     /// The drives filtered last, by their mode's frequency and Q and the sample rate (bits),
     /// newest last.
     filtered: std::sync::Mutex<Vec<(ModeKey, std::sync::Arc<Vec<f64>>)>>,
+    /// The unit circle at each bin, `e^{iθ}` at θ = 2π·line/n: the straight-line reading's
+    /// response takes it at every bin, and working it out once spares a `sincos` a bin.
+    circle: Vec<rustfft::num_complex::Complex<f64>>,
+    /// The drive's derivatives in the lag and damping ([`DriveSpectrum::derivatives`]) met
+    /// last, by lag, damping phase and sample rate (bits) and reading, newest last: a fit
+    /// that holds its dynamics asks for the same ones at every Jacobian.
+    derivatives_kept: std::sync::Mutex<Vec<(ModeKey, std::sync::Arc<[Vec<f64>; 2]>)>>,
 }
+
+/// How many [`DriveSpectrum::derivatives`] are kept: two drives each.
+const DERIVATIVES_KEPT: usize = 8;
 
 /// The drive a twin receives ([`Problem::twin_drive`]): the recorded one, or the recorded one
 /// through the nominal actuator's mode, shared with the simulations that asked for the same.
@@ -716,9 +726,18 @@ impl RampedMode {
     }
 
     /// The response at `theta` radians per sample.
+    #[cfg(test)]
     fn response(&self, theta: f64) -> rustfft::num_complex::Complex<f64> {
         use rustfft::num_complex::Complex;
-        let z = Complex::new(theta.cos(), theta.sin());
+        self.response_at(Complex::new(theta.cos(), theta.sin()))
+    }
+
+    /// The response at `z = e^{iθ}`.
+    fn response_at(
+        &self,
+        z: rustfft::num_complex::Complex<f64>,
+    ) -> rustfft::num_complex::Complex<f64> {
+        use rustfft::num_complex::Complex;
         let zm1 = z - 1.0;
         let mut h = Complex::new(1.0, 0.0) - self.lag * zm1 / self.t;
         for (c, e) in &self.poles {
@@ -760,12 +779,25 @@ impl DriveSpectrum {
             .collect();
         let mut planner = FftPlanner::new();
         planner.plan_fft_forward(n).process(&mut bins);
+        let circle = (0..n)
+            .map(|k| {
+                let line = if 2 * k <= n {
+                    k as f64
+                } else {
+                    k as f64 - n as f64
+                };
+                let theta = 2.0 * std::f64::consts::PI * line / n as f64;
+                Complex::new(theta.cos(), theta.sin())
+            })
+            .collect();
         Self {
             first,
             step,
             bins,
             inverse: planner.plan_fft_inverse(n),
             filtered: Default::default(),
+            circle,
+            derivatives_kept: Default::default(),
         }
     }
 
@@ -843,7 +875,7 @@ impl DriveSpectrum {
             };
             let h = match &ramped {
                 None => mode_response(&mode, line * fs_hz / n as f64),
-                Some(r) => r.response(2.0 * std::f64::consts::PI * line / n as f64),
+                Some(r) => r.response_at(self.circle[k]),
             };
             if 2 * k == n {
                 // The Nyquist line of an even record is real: keep the real part.
@@ -862,6 +894,41 @@ impl DriveSpectrum {
     /// the line taken out comes back lagged by `lag_samples` samples, which moves it by
     /// `−step` per sample of lag. `None` where either is not a mode a step away.
     pub(crate) fn derivatives(
+        &self,
+        lag_samples: f64,
+        q_phase: f64,
+        fs_hz: f64,
+        reading: DriveReading,
+    ) -> Option<std::sync::Arc<[Vec<f64>; 2]>> {
+        let key = (
+            lag_samples.to_bits(),
+            q_phase.to_bits(),
+            fs_hz.to_bits(),
+            reading,
+        );
+        let kept = |kept: &[(ModeKey, std::sync::Arc<[Vec<f64>; 2]>)]| {
+            (kept.iter().rev())
+                .find(|(k, _)| *k == key)
+                .map(|(_, d)| d.clone())
+        };
+        if let Some(d) = self.derivatives_kept.lock().ok().and_then(|f| kept(&f)) {
+            return Some(d);
+        }
+        let d =
+            std::sync::Arc::new(self.derivatives_computed(lag_samples, q_phase, fs_hz, reading)?);
+        if let Ok(mut f) = self.derivatives_kept.lock() {
+            if kept(&f).is_none() {
+                if f.len() >= DERIVATIVES_KEPT {
+                    f.remove(0);
+                }
+                f.push((key, d.clone()));
+            }
+        }
+        Some(d)
+    }
+
+    /// [`Self::derivatives`], computed.
+    fn derivatives_computed(
         &self,
         lag_samples: f64,
         q_phase: f64,
@@ -1758,7 +1825,7 @@ impl Problem {
     /// How the drive the twin of θ receives moves with the nominal actuator's lag and
     /// damping ([`DriveSpectrum::derivatives`]); `None` where the tangent does not follow
     /// them (see [`Problem::tangent_covers`]).
-    fn drive_tangent(&self, spec: &ModelSpec, th: &[f64]) -> Option<[Vec<f64>; 2]> {
+    fn drive_tangent(&self, spec: &ModelSpec, th: &[f64]) -> Option<std::sync::Arc<[Vec<f64>; 2]>> {
         const STEP: f64 = 1e-5;
         let lag = spec.actuator_lag();
         let (l, q) = (*th.get(lag)?, *th.get(lag + 1)?);
@@ -1821,7 +1888,7 @@ impl Problem {
         let effects = effect_tangents(spec);
         let mut others = vec![P::ContactPoint, P::LnGain];
         others.extend(effects.iter().map(|&(_, p, _)| p));
-        let first = match &drive_tangent {
+        let first = match drive_tangent.as_deref() {
             Some([a, b]) => {
                 others.extend([P::Drive(0), P::Drive(1)]);
                 vec![a[0], b[0]]
@@ -1888,7 +1955,7 @@ impl Problem {
         };
         let mut columns: Vec<Vec<f64>> = vec![Vec::with_capacity(n); which.len()];
         for (k, &d) in drive.iter().enumerate() {
-            let s = match &drive_tangent {
+            let s = match drive_tangent.as_deref() {
                 Some([a, b]) => twin.step_with_tangent_and_drive(d, &[a[k], b[k]], &mut tangent),
                 None => twin.step_with_tangent(d, &mut tangent),
             };
