@@ -1430,15 +1430,21 @@ pub struct Problem {
 }
 
 /// The effects' parameters the twin's tangent follows in `spec`: each one's index in θ, the
-/// tangent's parameter, and how much that moves per unit of θ. The DMT adhesion's pull-off
-/// force, a surface drift's rate and curvature, and a film's thickness; a missing
-/// relaxation's term is the material's ([`Problem::tangent_covers`]).
+/// tangent's parameter, and how much that moves per unit of θ. The adhesion's pull-off
+/// force, a neck's stiffness and a long-range pull's range, a surface drift's rate and
+/// curvature, and a film's thickness; a missing relaxation's term is the material's
+/// ([`Problem::tangent_covers`]).
 fn effect_tangents(spec: &ModelSpec) -> Vec<(usize, crate::twin::tangent::TangentParam, f64)> {
     use crate::twin::tangent::TangentParam as P;
     let mut out = Vec::new();
     if let Some(o) = spec.offset_of(Effect::Adhesion) {
-        if spec.adhesion == AdhesionForm::Dmt {
-            out.push((o, P::LnAdhesion, 1.0));
+        out.push((o, P::LnAdhesion, 1.0));
+        // A neck's length sets only where it breaks, a jump no derivative sees: its column
+        // is a difference.
+        match spec.adhesion {
+            AdhesionForm::Dmt => {}
+            AdhesionForm::Neck => out.push((o + 2, P::LnNeckStiffness, 1.0)),
+            AdhesionForm::LongRange => out.push((o + 1, P::LnAdhesionRange, 1.0)),
         }
     }
     if let Some(o) = spec.offset_of(Effect::ThermalDrift) {
@@ -1794,18 +1800,17 @@ impl Problem {
     /// `spec` at θ from one run of the twin's tangent ([`crate::twin::tangent`]): the gain,
     /// the contact point and the whole material (the nominal terms and a missing
     /// relaxation's), and the nominal actuator's lag and damping where its mode acts on the
-    /// drive a step either way and the actuator is not hysteretic. Empty where the twin has a part the tangent does not follow (an adhesive neck or a
-    /// long-range pull) or a closed-form column is built from the simulation (the drag, the
-    /// detector's nonlinearity, a wandering drift), whose own derivatives it does not carry.
+    /// drive a step either way and the actuator is not hysteretic; and the effects' own
+    /// parameters that act in the contact ([`effect_tangents`]). Empty where a closed-form
+    /// column is built from the simulation (the drag, the detector's nonlinearity, a
+    /// wandering drift), whose own derivatives the tangent does not carry.
     pub fn tangent_covers(&self, spec: &ModelSpec, th: &[f64]) -> Vec<usize> {
         let from_simulation = spec.effects.iter().any(|&e| match e {
             Effect::HydrodynamicDrag | Effect::DetectorNonlinearity => true,
             Effect::ThermalDrift => spec.drift == DriftForm::Wandering,
             _ => false,
         });
-        let adhesion_off_the_surface = spec.has(Effect::Adhesion)
-            && matches!(spec.adhesion, AdhesionForm::Neck | AdhesionForm::LongRange);
-        if from_simulation || adhesion_off_the_surface {
+        if from_simulation {
             return Vec::new();
         }
         let mut covers = vec![0, 1, 2];

@@ -693,8 +693,7 @@ impl Twin {
 
     /// The forward sensitivities of this twin at rest (just built or settled), for
     /// [`Self::step_with_tangent`]; `None` where the twin has a part they do not follow
-    /// (see [`tangent`]): an adhesive neck, a long-range adhesion, the lever's mode, or a
-    /// detector that does more than delay.
+    /// (see [`tangent`]): the lever's mode, or a detector that does more than delay.
     pub fn tangent(&self) -> Option<Tangent> {
         use tangent::TangentParam as P;
         self.tangent_of(&[P::ContactPoint, P::LnGain], &[])
@@ -718,22 +717,19 @@ impl Twin {
             P::DriftRate => s.surface_drift_nm_per_s.is_some(),
             P::DriftCurvature => s.surface_drift_curvature_nm_per_s2.is_some(),
             P::LnFilmThickness => s.thickness_nm.is_some(),
+            P::LnNeckStiffness => s.neck.is_some(),
+            P::LnAdhesionRange => s.adhesion_range_nm.is_some(),
             P::Drive(j) => *j < first.len(),
             _ => true,
         };
         if !others.iter().all(has) {
             return None;
         }
-        let s = &self.cfg.sample;
         let delay_only = DetectorConfig {
             delay_s: 0.0,
             ..self.cfg.detector.clone()
         } == DetectorConfig::default();
-        let follows = s.neck.is_none()
-            && s.adhesion_range_nm.is_none()
-            && self.lever.is_none()
-            && delay_only
-            && self.slot == SampleSlot::Soft;
+        let follows = self.lever.is_none() && delay_only && self.slot == SampleSlot::Soft;
         follows.then(|| {
             let mut t = Tangent::new(
                 &self.material,
@@ -996,7 +992,7 @@ impl Twin {
                 } else {
                     0.0
                 };
-                self.long_range_hold(gap_m - depth_m, f_ext_n)
+                (self.long_range_hold(gap_m - depth_m, f_ext_n)).map(|free| (free, depth_m))
             })
         };
         // Pulled onto the surface with the whole adhesion, the tip indents it where the
@@ -1032,7 +1028,7 @@ impl Twin {
         } else {
             let free = free();
             let touching = match free {
-                Some(FreeLever::SnapsIn) => holds_at_pull_off(),
+                Some((FreeLever::SnapsIn, _)) => holds_at_pull_off(),
                 _ => {
                     gap_m > 0.0
                         && contact.y_from_indentation(gap_m) * film(gap_m).unwrap_or(1.0) > beta
@@ -1040,8 +1036,11 @@ impl Twin {
             };
             (touching, free)
         };
-        // The solve's slope `g_d` at the root, in contact (the tangent's denominator).
+        // The solve's slope `g_d` at the root, in contact (the tangent's denominator), and
+        // whether a neck holds the tip (and where its foot was before this sample).
         let mut root_slope = None;
+        let mut held_by_neck = false;
+        let foot_before = self.neck_foot_m;
         let (d_m, u, share) = if touching {
             // Two or three Newton steps from the previous solution are what keep the twin far
             // faster than real time. The third mostly confirms the second (on the corpus's
@@ -1069,8 +1068,9 @@ impl Twin {
             root_slope = Some(slope);
             (d, cf * (k_si * d + f_net_n), share)
         } else if let Some(d) = self.neck_hold(gap_m, d_lo, commit) {
+            held_by_neck = true;
             (d, 0.0, 1.0)
-        } else if let Some(free) = free {
+        } else if let Some((free, _)) = free {
             match free {
                 FreeLever::Balanced { d_m, share } => (d_m, 0.0, share),
                 // No balance off the surface, yet no contact either (the surface has not
@@ -1091,28 +1091,57 @@ impl Twin {
                 t.material.affine(&self.material, &mut t.affine);
                 let t_s = self.elapsed_samples as f64 / self.fs_hz;
                 // The filmed shape's move with ln thickness: f(h)·∂factor/∂χ·(−χ).
-                let film_move = match (root_slope, self.cfg.sample.thickness_nm) {
-                    (Some(_), Some(th)) if t.has_film() && gap_m - d_m > 0.0 => {
-                        let h = gap_m - d_m;
-                        let chi = self.shape.contact_radius_and_slope(h).0 / (th * 1e-9);
-                        let dfactor_dchi = c1
-                            + (2.0 * c2) * chi
-                            + (3.0 * c3) * chi.powi(2)
-                            + (4.0 * c4) * chi.powi(3);
-                        self.shape.y_and_slope(h).0 * dfactor_dchi * -chi
+                let film_move = match root_slope {
+                    Some(_) if t.has_film() => {
+                        film_factor_move(&self.shape, self.cfg.sample.thickness_nm, gap_m - d_m)
                     }
                     _ => 0.0,
+                };
+                // Off the surface: what holds the tip there, if anything.
+                let off = if root_slope.is_some() {
+                    OffSurface::None
+                } else if held_by_neck {
+                    let foot = self.neck_foot_m.unwrap_or(gap_m - d_lo);
+                    OffSurface::Neck {
+                        fresh: foot_before.is_none(),
+                        extension: foot - gap_m,
+                        kn: self.cfg.sample.neck.map_or(0.0, |n| n.stiffness_n_per_m),
+                    }
+                } else {
+                    match free {
+                        Some((FreeLever::Balanced { d_m: d, .. }, depth)) => {
+                            let lambda = self.cfg.sample.adhesion_range_nm.unwrap_or(1.0) * 1e-9;
+                            let x = d - (gap_m - depth);
+                            let pull = f_adh_n * (-x / lambda).exp();
+                            let filmed_slope = if depth > 0.0 {
+                                filmed_slope_at(&self.shape, self.cfg.sample.thickness_nm, depth)
+                            } else {
+                                0.0
+                            };
+                            OffSurface::LongRange {
+                                x,
+                                lambda,
+                                pull,
+                                slope: k_si - pull / lambda,
+                                depth,
+                                filmed_slope,
+                            }
+                        }
+                        Some((FreeLever::SnapsIn, _)) => OffSurface::SnapsIn,
+                        None => OffSurface::None,
+                    }
                 };
                 for q in 0..t.params() {
                     let p = t.param(q);
                     // The contact's net force moves with the adhesion's pull-off force.
                     let dnet = if p == P::LnAdhesion { f_adh_n } else { 0.0 };
+                    let dgap = t.gap_derivative_m(q, base_nm, t_s);
                     let dd = match root_slope {
                         Some(slope) => {
                             // g_d = −f′(h) − α·cf·K: the filmed shape's slope from the solve's.
                             let filmed_slope = -slope - alpha * cf * k_si;
                             let (dalpha, dbeta) = t.affine[q];
-                            let mut g_q = filmed_slope * t.gap_derivative_m(q, base_nm, t_s)
+                            let mut g_q = filmed_slope * dgap
                                 - dalpha * cf * (k_si * d_m + f_net_n)
                                 - alpha * cf * dnet
                                 - dbeta;
@@ -1121,7 +1150,63 @@ impl Twin {
                             }
                             -g_q / slope
                         }
-                        None => 0.0,
+                        None => match off {
+                            OffSurface::None => 0.0,
+                            OffSurface::SnapsIn => -dnet / k_si,
+                            // K·d = K·d_lo − k_n·(foot − gap + d) … solved for d; the foot
+                            // is where the tip let go: gap − d_lo then.
+                            OffSurface::Neck {
+                                fresh,
+                                extension,
+                                kn,
+                            } => {
+                                let dd_lo = -dnet / k_si;
+                                let dfoot = if fresh {
+                                    dgap - dd_lo
+                                } else {
+                                    t.neck_foot_m[q]
+                                };
+                                t.neck_foot_m[q] = dfoot;
+                                let mut dd = (k_si * dd_lo - kn * (dfoot - dgap)) / (k_si + kn);
+                                if p == P::LnNeckStiffness {
+                                    dd += kn * (-extension - d_m) / (k_si + kn);
+                                }
+                                dd
+                            }
+                            // q(x) = K·(gap − depth + x) + F·e^(−x/λ) = 0 (no external
+                            // force in a tangent's twin); the depth is where the filmed
+                            // shape reaches the memory β.
+                            OffSurface::LongRange {
+                                x,
+                                lambda,
+                                pull,
+                                slope,
+                                depth,
+                                filmed_slope,
+                            } => {
+                                let mut ddepth = 0.0;
+                                if depth > 0.0 && filmed_slope > 0.0 {
+                                    let mut dfilmed = t.affine[q].1;
+                                    if p == P::LnFilmThickness {
+                                        dfilmed -= film_factor_move(
+                                            &self.shape,
+                                            self.cfg.sample.thickness_nm,
+                                            depth,
+                                        );
+                                    }
+                                    ddepth = dfilmed / filmed_slope;
+                                }
+                                let dgap_free = dgap - ddepth;
+                                let mut dq = k_si * dgap_free;
+                                if p == P::LnAdhesion {
+                                    dq += pull;
+                                }
+                                if p == P::LnAdhesionRange {
+                                    dq += pull * x / lambda;
+                                }
+                                dgap_free - dq / slope
+                            }
+                        },
                     };
                     t.deflection_m[q] = dd;
                     t.du[q] = if root_slope.is_some() {
@@ -1193,6 +1278,66 @@ impl Twin {
             self.neck_foot_m = holds.then_some(foot);
         }
         holds.then_some(d)
+    }
+}
+
+/// What holds the tip off the surface in a sample, for the tangent ([`tangent`]).
+#[derive(Debug, Clone, Copy)]
+enum OffSurface {
+    /// Nothing (or the tip is on the surface).
+    None,
+    /// The long-range pull has no balance off the surface: the tip rests on it.
+    SnapsIn,
+    /// An adhesive neck: `fresh` where it formed this sample, its extension less the
+    /// deflection (`foot − gap`, m) and its stiffness (N/m).
+    Neck {
+        fresh: bool,
+        extension: f64,
+        kn: f64,
+    },
+    /// The long-range pull balances the lever at separation `x` (m) of range `lambda` (m)
+    /// with `pull` (N); `slope` is the balance's `∂q/∂x`, and the surface stands `depth`
+    /// (m) in, where the filmed shape rises by `filmed_slope` per metre.
+    LongRange {
+        x: f64,
+        lambda: f64,
+        pull: f64,
+        slope: f64,
+        depth: f64,
+        filmed_slope: f64,
+    },
+}
+
+/// The slope of the filmed shape `film(h)·y(h)` at depth `h_m` (the film of `thickness_nm`,
+/// if any): the tangent's, apart from the contact solve's own.
+fn filmed_slope_at(shape: &ShapeFunction, thickness_nm: Option<f64>, h_m: f64) -> f64 {
+    let (y, dy) = shape.y_and_slope(h_m);
+    match thickness_nm {
+        Some(th) if h_m > 0.0 => {
+            let [c1, c2, c3, c4] = DIMITRIADIS_FILM;
+            let (a, da_dh) = shape.contact_radius_and_slope(h_m);
+            let chi = a / (th * 1e-9);
+            let factor = 1.0 + c1 * chi + c2 * chi.powi(2) + c3 * chi.powi(3) + c4 * chi.powi(4);
+            let dfactor_dchi =
+                c1 + (2.0 * c2) * chi + (3.0 * c3) * chi.powi(2) + (4.0 * c4) * chi.powi(3);
+            dy * factor + y * dfactor_dchi * da_dh / (th * 1e-9)
+        }
+        _ => dy,
+    }
+}
+
+/// How the filmed shape at depth `h_m` moves with the ln of the film's thickness:
+/// `y(h)·∂factor/∂χ·(−χ)`; 0 without a film.
+fn film_factor_move(shape: &ShapeFunction, thickness_nm: Option<f64>, h_m: f64) -> f64 {
+    match thickness_nm {
+        Some(th) if h_m > 0.0 => {
+            let [c1, c2, c3, c4] = DIMITRIADIS_FILM;
+            let chi = shape.contact_radius_and_slope(h_m).0 / (th * 1e-9);
+            let dfactor_dchi =
+                c1 + (2.0 * c2) * chi + (3.0 * c3) * chi.powi(2) + (4.0 * c4) * chi.powi(3);
+            shape.y_and_slope(h_m).0 * dfactor_dchi * -chi
+        }
+        _ => 0.0,
     }
 }
 

@@ -18,17 +18,21 @@
 //! - the contact's input `u = cf·(K·d + F)` moves as `cf·K·∂d`, and feeds the state's
 //!   derivatives for the next sample; out of contact `u = 0` and the free lever's deflection
 //!   (`F_ext/K`) does not move;
+//! - off the surface, an adhesive neck holds the tip by a spring from its foot (where the
+//!   contact let go, which moves as the gap and the pull-off did then), and a long-range
+//!   pull balances the lever at the root of `K·(gap − depth + x) + F·e^(−x/λ)`, the depth
+//!   where the recovering surface stands (`f(depth) = β`): each moves as its root does;
 //! - the detector's delay is linear: each derivative goes through a delay line of its own;
 //! - a parameter that moves the drive itself (the diagnosis's nominal actuator dynamics act
 //!   on the drive before the twin) moves the base through the actuator, which is linear
 //!   without hysteresis: its derivative goes through an actuator of its own, at rest at
 //!   zero, as the caller hands it in ([`super::Twin::step_with_tangent_and_drive`]).
 //!
-//! A contact gained or lost between samples is a jump no derivative sees; so are the
-//! adhesive neck and the long-range pull, the lever's mode, a detector with noise,
-//! nonlinearity or quantisation, and a hysteretic actuator under a drive parameter:
-//! [`super::Twin::tangent`] gives no tangent for a twin with any of them, and its caller
-//! takes finite differences there.
+//! A contact gained or lost between samples is a jump no derivative sees, and so are a
+//! neck breaking and a tip snapping onto or off the surface. The lever's mode, a detector
+//! with noise, nonlinearity or quantisation, and a hysteretic actuator under a drive
+//! parameter are not followed: [`super::Twin::tangent_of`] gives no tangent for a twin with
+//! any of them, and its caller takes finite differences there.
 
 use super::actuator::{Actuator, ActuatorConfig};
 use super::detector::{Detector, DetectorConfig};
@@ -58,6 +62,10 @@ pub enum TangentParam {
     DriftCurvature,
     /// ln of the film's thickness (`sample.thickness_nm`).
     LnFilmThickness,
+    /// ln of an adhesive neck's stiffness (`sample.neck.stiffness_n_per_m`).
+    LnNeckStiffness,
+    /// ln of the long-range adhesion's decay length (`sample.adhesion_range_nm`).
+    LnAdhesionRange,
 }
 
 /// The sensitivities of a running twin; see the module's docs.
@@ -80,6 +88,10 @@ pub struct Tangent {
     drive_actuators: Vec<Actuator>,
     /// The base's derivatives in the drive parameters this sample, nm.
     drive_base_nm: Vec<f64>,
+    /// While a neck holds the tip: its foot's derivatives, m, per parameter.
+    pub(super) neck_foot_m: Vec<f64>,
+    /// Whether a sample has been read out: the delay lines settle at the first.
+    started: bool,
 }
 
 impl Tangent {
@@ -116,6 +128,8 @@ impl Tangent {
         at_rest.settle(0.0);
         Self {
             params: all,
+            neck_foot_m: vec![0.0; params],
+            started: false,
             drive_actuators: vec![at_rest; drive_params],
             drive_base_nm: vec![0.0; drive_params],
             affine: vec![(0.0, 0.0); params],
@@ -199,9 +213,17 @@ impl Tangent {
         {
             let v = dd * 1e9 / sensitivity_nm_per_v;
             *out = match self.delays.get_mut(q) {
-                Some(line) => line.step(v),
+                Some(line) => {
+                    // The twin settled its delay line at its deflection at rest, which its
+                    // first sample repeats (the drive starts where it settled): so do these.
+                    if !self.started {
+                        line.settle(v);
+                    }
+                    line.step(v)
+                }
                 None => v,
             };
         }
+        self.started = true;
     }
 }
