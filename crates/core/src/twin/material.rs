@@ -89,8 +89,10 @@ impl MaterialSensitivity {
     pub fn new(state: &MaterialState, extra: usize) -> Self {
         let params = 1 + 2 * state.terms.len() + extra;
         Self {
+            // A term far faster than the sampling has `a = e^{−T/τ}` = 0, where `−a·ln a`
+            // is 0·∞: its limit, 0, is what `a·T/τ` gives.
             rates: (state.terms.iter())
-                .map(|&(_, a, c)| (-a * a.ln(), c - a))
+                .map(|&(_, a, c)| (if a > 0.0 { -a * a.ln() } else { 0.0 }, c - a))
                 .collect(),
             dx: vec![0.0; state.terms.len() * params],
             du_prev: vec![0.0; params],
