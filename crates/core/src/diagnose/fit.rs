@@ -1046,6 +1046,33 @@ pub(crate) mod tests {
         let covers = problem.tangent_covers(&spec, &th);
         assert_eq!(covers.len(), 3 + 2 * MATERIAL_TERMS + 2 + 4);
         check_tangent(&problem, &spec, &th, &covers);
+        // The actuator's creep and a resonance of its own; then its hysteresis, which leaves
+        // its own parameters and the stage's lag and damping to differences.
+        let spec = ModelSpec::nominal(MATERIAL_TERMS)
+            .with(&[Effect::PiezoCreep, Effect::InstrumentResonance]);
+        let mut th = th0.clone();
+        th.resize(spec.n_nonlinear(), 0.0);
+        let o = spec.offset_of(Effect::PiezoCreep).expect("creep");
+        th[o] = 0.05f64.ln();
+        th[o + 1] = 0.3f64.ln();
+        let o = spec
+            .offset_of(Effect::InstrumentResonance)
+            .expect("resonance");
+        th[o] = 300f64.ln();
+        th[o + 1] = 4f64.ln();
+        let covers = problem.tangent_covers(&spec, &th);
+        assert_eq!(covers.len(), 3 + 2 * MATERIAL_TERMS + 2 + 4);
+        check_tangent(&problem, &spec, &th, &covers);
+        let spec = ModelSpec::nominal(MATERIAL_TERMS).with(&[Effect::PiezoHysteresis]);
+        let mut th = th0.clone();
+        th.resize(spec.n_nonlinear(), 0.0);
+        let o = spec.offset_of(Effect::PiezoHysteresis).expect("hysteresis");
+        th[o] = 0.05f64.ln();
+        th[o + 1] = 0.5f64.ln();
+        th[o + 2] = 0.3;
+        let covers = problem.tangent_covers(&spec, &th);
+        assert_eq!(covers.len(), 3 + 2 * MATERIAL_TERMS);
+        check_tangent(&problem, &spec, &th, &covers);
     }
 
     /// Compares the tangent's columns of `covers` with central differences.

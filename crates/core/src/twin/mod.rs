@@ -758,7 +758,20 @@ impl Twin {
         dv: &[f64],
         tangent: &mut Tangent,
     ) -> TwinSample {
+        self.step_with_tangent_moved(v, dv, &[], tangent)
+    }
+
+    /// [`Self::step_with_tangent_and_drive`] where the base moves with the tangent's `Base`
+    /// parameters by `dbase_nm` this sample (one per parameter, nm).
+    pub fn step_with_tangent_moved(
+        &mut self,
+        v: f64,
+        dv: &[f64],
+        dbase_nm: &[f64],
+        tangent: &mut Tangent,
+    ) -> TwinSample {
         tangent.step_drive(dv);
+        tangent.set_base(dbase_nm);
         let sample = self.step_inner(v, Some(&mut *tangent));
         tangent.read_out(self.cfg.cantilever.deflection_sensitivity_nm_per_v);
         sample

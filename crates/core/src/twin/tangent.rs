@@ -66,6 +66,10 @@ pub enum TangentParam {
     LnNeckStiffness,
     /// ln of the long-range adhesion's decay length (`sample.adhesion_range_nm`).
     LnAdhesionRange,
+    /// A parameter `j` that moves the base by what the caller hands in
+    /// ([`super::Twin::step_with_tangent_moved`]): the actuator's own (its modes, creep and
+    /// hysteresis), whose derivative the caller takes on the actuator alone.
+    Base(usize),
 }
 
 /// The sensitivities of a running twin; see the module's docs.
@@ -88,6 +92,8 @@ pub struct Tangent {
     drive_actuators: Vec<Actuator>,
     /// The base's derivatives in the drive parameters this sample, nm.
     drive_base_nm: Vec<f64>,
+    /// The base's derivatives in the `Base` parameters this sample, nm.
+    base_given_nm: Vec<f64>,
     /// While a neck holds the tip: its foot's derivatives, m, per parameter.
     pub(super) neck_foot_m: Vec<f64>,
     /// Whether a sample has been read out: the delay lines settle at the first.
@@ -129,6 +135,13 @@ impl Tangent {
         Self {
             params: all,
             neck_foot_m: vec![0.0; params],
+            base_given_nm: vec![
+                0.0;
+                others
+                    .iter()
+                    .filter(|p| matches!(p, TangentParam::Base(_)))
+                    .count()
+            ],
             started: false,
             drive_actuators: vec![at_rest; drive_params],
             drive_base_nm: vec![0.0; drive_params],
@@ -170,6 +183,13 @@ impl Tangent {
         }
     }
 
+    /// Takes this sample's base derivatives in the `Base` parameters, nm.
+    pub(super) fn set_base(&mut self, dbase_nm: &[f64]) {
+        for (out, &d) in self.base_given_nm.iter_mut().zip(dbase_nm) {
+            *out = d;
+        }
+    }
+
     /// Steps the drive's derivatives `dv` (one per drive parameter) through the actuators.
     pub(super) fn step_drive(&mut self, dv: &[f64]) {
         for ((a, &d), out) in (self.drive_actuators.iter_mut())
@@ -187,6 +207,7 @@ impl Tangent {
             TangentParam::ContactPoint => -1e-9,
             TangentParam::LnGain => base_nm * 1e-9,
             TangentParam::Drive(j) => self.drive_base_nm[j] * 1e-9,
+            TangentParam::Base(j) => self.base_given_nm[j] * 1e-9,
             // The surface moves toward the tip by `v·t + c·t²`.
             TangentParam::DriftRate => t_s * 1e-9,
             TangentParam::DriftCurvature => t_s * t_s * 1e-9,
