@@ -109,29 +109,28 @@ impl MaterialSensitivity {
     /// contact solve's `g_θ` needs. Into the caller's slice, as it is asked for every sample.
     pub fn affine(&self, state: &MaterialState, out: &mut [(f64, f64)]) {
         let (m, params) = (self.rates.len(), self.params());
-        for (q, slot) in out.iter_mut().enumerate().take(params) {
-            // Through the state and the last input, for every parameter.
-            let mut dbeta = 0.0;
-            for (i, ((j, a, c), _)) in state.terms.iter().zip(&state.x).enumerate() {
-                dbeta += j * (c * self.du_prev[q] - a * self.dx[i * params + q]);
+        let out = &mut out[..params];
+        // Through the state and the last input, for every parameter: term by term over
+        // contiguous rows (this runs every sample of a fit's tangent).
+        for slot in out.iter_mut() {
+            *slot = (0.0, 0.0);
+        }
+        for (i, &(j, a, c)) in state.terms.iter().enumerate() {
+            let row = &self.dx[i * params..(i + 1) * params];
+            for ((slot, &du), &dx) in out.iter_mut().zip(&self.du_prev).zip(row) {
+                slot.1 += j * (c * du - a * dx);
             }
-            // And directly, for the material's own.
-            let dalpha = if q == 0 {
-                state.j0
-            } else if q <= m {
-                let (j, a, c) = state.terms[q - 1];
-                dbeta += j * (c * state.prev_u - a * state.x[q - 1]);
-                -j * c
-            } else if q <= 2 * m {
-                let i = q - 1 - m;
-                let (j, ..) = state.terms[i];
-                let (da, dc) = self.rates[i];
-                dbeta += j * (dc * state.prev_u - da * state.x[i]);
-                -j * dc
-            } else {
-                0.0
-            };
-            *slot = (dalpha, dbeta);
+        }
+        // And directly, for the material's own.
+        out[0].0 = state.j0;
+        for (i, (&(j, a, c), &x)) in state.terms.iter().zip(&state.x).enumerate() {
+            let (da, dc) = self.rates[i];
+            let compliance = &mut out[1 + i];
+            compliance.0 = -j * c;
+            compliance.1 += j * (c * state.prev_u - a * x);
+            let tau = &mut out[1 + m + i];
+            tau.0 = -j * dc;
+            tau.1 += j * (dc * state.prev_u - da * x);
         }
     }
 
@@ -144,14 +143,11 @@ impl MaterialSensitivity {
         for (i, ((_, a, c), x)) in state.terms.iter().zip(&state.x).enumerate() {
             let (da, dc) = self.rates[i];
             let row = &mut self.dx[i * params..(i + 1) * params];
-            for (q, (dxq, (&duq, du_prev))) in
-                row.iter_mut().zip(du.iter().zip(&self.du_prev)).enumerate()
-            {
+            for (dxq, (&duq, du_prev)) in row.iter_mut().zip(du.iter().zip(&self.du_prev)) {
                 *dxq = a * *dxq + c * (duq - du_prev);
-                if q == 1 + m + i {
-                    *dxq += da * x + dc * (u - state.prev_u);
-                }
             }
+            // The term's own τ moves its rates too.
+            row[1 + m + i] += da * x + dc * (u - state.prev_u);
         }
         for (p, &d) in self.du_prev.iter_mut().zip(du) {
             *p = d;
