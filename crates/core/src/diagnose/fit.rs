@@ -1,9 +1,12 @@
 //! Fitting a model to the recording: Levenberg–Marquardt on the twin's simulation, and a
 //! cheap screening step that ranks candidates before the full refits.
 //!
-//! The solver is the project's Levenberg–Marquardt ([`crate::estimate::lm::solve_lazy`]) with
-//! a finite-difference Jacobian, which that entry point asks for only at accepted points: each
-//! Jacobian costs one twin simulation per parameter.
+//! The solver is the project's Levenberg–Marquardt ([`crate::estimate::lm::solve_lazy`]),
+//! which asks for a Jacobian only at accepted points. Most of its columns come from one run
+//! of the twin carrying their derivatives ([`crate::twin::tangent`]); the rest (the
+//! hysteresis's, a channel delay's, a tip's, a neck's length, and every column of a model
+//! with a closed-form term built from the simulation) cost one simulation each, by forward
+//! differences.
 
 use super::model::{frees_parameter, Evaluation, ModelSpec, Problem};
 use crate::estimate::lm::{solve_lazy, Damping, LmOptions, Stall};

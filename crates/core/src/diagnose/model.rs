@@ -607,8 +607,11 @@ pub struct DriveSpectrum {
     /// The drive's derivatives in the lag and damping ([`DriveSpectrum::derivatives`]) met
     /// last, by lag, damping phase and sample rate (bits) and reading, newest last: a fit
     /// that holds its dynamics asks for the same ones at every Jacobian.
-    derivatives_kept: std::sync::Mutex<Vec<(ModeKey, std::sync::Arc<[Vec<f64>; 2]>)>>,
+    derivatives_kept: std::sync::Mutex<Vec<(ModeKey, DriveDerivatives)>>,
 }
+
+/// The drive's derivatives in the nominal actuator's lag and damping, shared.
+type DriveDerivatives = std::sync::Arc<[Vec<f64>; 2]>;
 
 /// How many [`DriveSpectrum::derivatives`] are kept: two drives each.
 const DERIVATIVES_KEPT: usize = 8;
@@ -899,14 +902,14 @@ impl DriveSpectrum {
         q_phase: f64,
         fs_hz: f64,
         reading: DriveReading,
-    ) -> Option<std::sync::Arc<[Vec<f64>; 2]>> {
+    ) -> Option<DriveDerivatives> {
         let key = (
             lag_samples.to_bits(),
             q_phase.to_bits(),
             fs_hz.to_bits(),
             reading,
         );
-        let kept = |kept: &[(ModeKey, std::sync::Arc<[Vec<f64>; 2]>)]| {
+        let kept = |kept: &[(ModeKey, DriveDerivatives)]| {
             (kept.iter().rev())
                 .find(|(k, _)| *k == key)
                 .map(|(_, d)| d.clone())
@@ -1458,6 +1461,7 @@ fn effect_tangents(spec: &ModelSpec) -> Vec<(usize, crate::twin::tangent::Tangen
         out.push((o, P::LnAdhesion, 1.0));
         // A neck's length sets only where it breaks, a jump no derivative sees: its column
         // is a difference.
+        // (A long-range pull's model takes no tangent: `Problem::tangent_covers`.)
         match spec.adhesion {
             AdhesionForm::Dmt => {}
             AdhesionForm::Neck => out.push((o + 2, P::LnNeckStiffness, 1.0)),
@@ -1827,7 +1831,11 @@ impl Problem {
             Effect::ThermalDrift => spec.drift == DriftForm::Wandering,
             _ => false,
         });
-        if from_simulation {
+        // A long-range pull that stiffens faster than the lever snaps the tip on and off
+        // the surface: jumps whose timing moves with every parameter, which differences
+        // straddle and no derivative sees. Its every column is a difference.
+        let snaps = spec.has(Effect::Adhesion) && spec.adhesion == AdhesionForm::LongRange;
+        if from_simulation || snaps {
             return Vec::new();
         }
         let mut covers = vec![0, 1, 2];
@@ -1879,7 +1887,7 @@ impl Problem {
     /// How the drive the twin of θ receives moves with the nominal actuator's lag and
     /// damping ([`DriveSpectrum::derivatives`]); `None` where the tangent does not follow
     /// them (see [`Problem::tangent_covers`]).
-    fn drive_tangent(&self, spec: &ModelSpec, th: &[f64]) -> Option<std::sync::Arc<[Vec<f64>; 2]>> {
+    fn drive_tangent(&self, spec: &ModelSpec, th: &[f64]) -> Option<DriveDerivatives> {
         const STEP: f64 = 1e-5;
         let lag = spec.actuator_lag();
         let (l, q) = (*th.get(lag)?, *th.get(lag + 1)?);
