@@ -1496,6 +1496,29 @@ pub struct Simulation {
     pub lever_share: Vec<f64>,
 }
 
+impl Simulation {
+    fn with_capacity(n: usize) -> Self {
+        Self {
+            clean_v: Vec::with_capacity(n),
+            base_nm: Vec::with_capacity(n),
+            indentation_m: Vec::with_capacity(n),
+            lever_share: Vec::with_capacity(n),
+        }
+    }
+
+    /// Appends the twin's sample `s`; `None` where its reading is not finite.
+    fn record(&mut self, s: &crate::twin::TwinSample) -> Option<()> {
+        if !s.deflection_v.is_finite() {
+            return None;
+        }
+        self.clean_v.push(s.deflection_v);
+        self.base_nm.push(s.truth.base_nm);
+        self.indentation_m.push(s.truth.indentation_m);
+        self.lever_share.push(s.truth.lever_share);
+        Some(())
+    }
+}
+
 /// One evaluated model.
 #[derive(Debug, Clone)]
 pub struct Evaluation {
@@ -1798,21 +1821,9 @@ impl Problem {
         let mut twin = Twin::new(&cfg, self.fs_hz);
         twin.settle(drive[0]);
         let n = drive.len();
-        let mut sim = Simulation {
-            clean_v: Vec::with_capacity(n),
-            base_nm: Vec::with_capacity(n),
-            indentation_m: Vec::with_capacity(n),
-            lever_share: Vec::with_capacity(n),
-        };
+        let mut sim = Simulation::with_capacity(n);
         for &d in drive {
-            let s = twin.step(d);
-            if !s.deflection_v.is_finite() {
-                return None;
-            }
-            sim.clean_v.push(s.deflection_v);
-            sim.base_nm.push(s.truth.base_nm);
-            sim.indentation_m.push(s.truth.indentation_m);
-            sim.lever_share.push(s.truth.lever_share);
+            sim.record(&twin.step(d))?;
         }
         Some(sim)
     }
@@ -2020,12 +2031,7 @@ impl Problem {
             return None;
         }
         let n = drive.len();
-        let mut sim = Simulation {
-            clean_v: Vec::with_capacity(n),
-            base_nm: Vec::with_capacity(n),
-            indentation_m: Vec::with_capacity(n),
-            lever_share: Vec::with_capacity(n),
-        };
+        let mut sim = Simulation::with_capacity(n);
         let mut columns: Vec<Vec<f64>> = vec![Vec::with_capacity(n); which.len()];
         let mut dbase = vec![0.0; base_moves.len()];
         for (k, &d) in drive.iter().enumerate() {
@@ -2038,13 +2044,7 @@ impl Problem {
                 }
                 None => twin.step_with_tangent_moved(d, &[], &dbase, &mut tangent),
             };
-            if !s.deflection_v.is_finite() {
-                return None;
-            }
-            sim.clean_v.push(s.deflection_v);
-            sim.base_nm.push(s.truth.base_nm);
-            sim.indentation_m.push(s.truth.indentation_m);
-            sim.lever_share.push(s.truth.lever_share);
+            sim.record(&s)?;
             let dv = tangent.deflection_v();
             for (column, mix) in columns.iter_mut().zip(&mixes) {
                 column.push(mix.iter().map(|&(q, w)| w * dv[q]).sum());
