@@ -153,8 +153,8 @@ fn jacobian_with(
         // The twin had no tangent after all (a part `tangent_covers` cannot see from the
         // model alone): those columns by differences too.
         None if with_tangent => {
-            let (j, l) =
-                jacobian_by_differences(problem, spec, th, base, which, &by_tangent, ties, fan)?;
+            let picked: Vec<usize> = by_tangent.iter().map(|&c| which[c]).collect();
+            let (j, l) = jacobian_with(problem, spec, th, base, &picked, ties, fan, false)?;
             for (n, &c) in by_tangent.iter().enumerate() {
                 jac.set_column(c, &j.column(n));
                 linear.set_column(c, &l.column(n));
@@ -174,22 +174,6 @@ fn jacobian_with(
         }
     }
     Some((jac, linear))
-}
-
-/// [`jacobian`]'s columns `columns` (positions in `which`) by forward differences alone.
-#[allow(clippy::too_many_arguments)]
-fn jacobian_by_differences(
-    problem: &Problem,
-    spec: &ModelSpec,
-    th: &[f64],
-    base: &Evaluation,
-    which: &[usize],
-    columns: &[usize],
-    ties: &[(usize, usize)],
-    fan: &dyn Fan,
-) -> Option<(DMatrix<f64>, DMatrix<f64>)> {
-    let picked: Vec<usize> = columns.iter().map(|&c| which[c]).collect();
-    jacobian_with(problem, spec, th, base, &picked, ties, fan, false)
 }
 
 /// [`jacobian_with`] the twin's tangent where it has one.

@@ -613,6 +613,10 @@ pub struct DriveSpectrum {
 /// The drive's derivatives in the nominal actuator's lag and damping, shared.
 type DriveDerivatives = std::sync::Arc<[Vec<f64>; 2]>;
 
+/// The step in the lag (samples) and the damping phase of [`DriveSpectrum::derivatives`]'
+/// central differences of the mode's response.
+const DRIVE_DERIVATIVE_STEP: f64 = 1e-5;
+
 /// How many [`DriveSpectrum::derivatives`] are kept: two drives each.
 const DERIVATIVES_KEPT: usize = 8;
 
@@ -938,7 +942,7 @@ impl DriveSpectrum {
         fs_hz: f64,
         reading: DriveReading,
     ) -> Option<[Vec<f64>; 2]> {
-        const STEP: f64 = 1e-5;
+        const STEP: f64 = DRIVE_DERIVATIVE_STEP;
         let n = self.bins.len();
         let column = |plus: ResonantMode, minus: ResonantMode, line_rate: f64| {
             let mut buf: Vec<_> = (self.bins.iter())
@@ -1855,7 +1859,7 @@ impl Problem {
         if let Some(o) = spec.offset_of(Effect::MissingRelaxation) {
             covers.extend([o, o + 1]);
         }
-        if self.drive_tangent(spec, th).is_some() {
+        if self.follows_drive(spec, th) {
             let lag = spec.actuator_lag();
             covers.extend([lag, lag + 1]);
         }
@@ -1895,18 +1899,31 @@ impl Problem {
         )
     }
 
+    /// Whether the tangent follows the nominal actuator's lag and damping at θ: its mode acts
+    /// on the drive a step either way ([`DriveSpectrum::derivatives`]) and the actuator is not
+    /// hysteretic (the derivative goes through it as through a linear system). Decided from
+    /// the modes alone: [`Problem::tangent_covers`] asks at every Jacobian.
+    fn follows_drive(&self, spec: &ModelSpec, th: &[f64]) -> bool {
+        let lag = spec.actuator_lag();
+        match (th.get(lag), th.get(lag + 1)) {
+            (Some(&l), Some(&q)) => {
+                !spec.has(Effect::PiezoHysteresis)
+                    && nominal_actuator_mode(l - 2.0 * DRIVE_DERIVATIVE_STEP, q, self.fs_hz)
+                        .is_some()
+            }
+            _ => false,
+        }
+    }
+
     /// How the drive the twin of θ receives moves with the nominal actuator's lag and
     /// damping ([`DriveSpectrum::derivatives`]); `None` where the tangent does not follow
     /// them (see [`Problem::tangent_covers`]).
     fn drive_tangent(&self, spec: &ModelSpec, th: &[f64]) -> Option<DriveDerivatives> {
-        const STEP: f64 = 1e-5;
-        let lag = spec.actuator_lag();
-        let (l, q) = (*th.get(lag)?, *th.get(lag + 1)?);
-        if spec.has(Effect::PiezoHysteresis)
-            || nominal_actuator_mode(l - 2.0 * STEP, q, self.fs_hz).is_none()
-        {
+        if !self.follows_drive(spec, th) {
             return None;
         }
+        let lag = spec.actuator_lag();
+        let (l, q) = (th[lag], th[lag + 1]);
         self.drive_spectrum
             .get_or_init(|| DriveSpectrum::new(&self.drive))
             .derivatives(l, q, self.fs_hz, self.drive_reading)
