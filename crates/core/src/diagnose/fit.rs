@@ -5,8 +5,8 @@
 //! which asks for a Jacobian only at accepted points. Most of its columns come from one run
 //! of the twin carrying their derivatives ([`crate::twin::tangent`]); the rest (the
 //! hysteresis's, a channel delay's, a tip's, a neck's length, and every column of a model
-//! with a closed-form term built from the simulation) cost one simulation each, by forward
-//! differences.
+//! with a drag or a wandering drift, closed-form terms built from parts of the simulation
+//! the tangent does not follow) cost one simulation each, by forward differences.
 
 use super::model::{frees_parameter, Evaluation, ModelSpec, Problem};
 use crate::estimate::lm::{solve_lazy, Damping, LmOptions, Stall};

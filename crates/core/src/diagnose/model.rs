@@ -33,6 +33,23 @@ struct Regressor<'a> {
     /// The samples outside which both columns are zero: all of them but for a wandering
     /// drift's, each of which spans a third of the contact.
     span: std::ops::Range<usize>,
+    /// How the column moves with θ, for the tangent's Jacobian columns.
+    moves: Moves,
+}
+
+/// How a closed-form column moves with θ: a column built from the simulation moves with it,
+/// and the tangent's Jacobian columns ([`Problem::evaluate_with_tangent`]) need its
+/// derivative beside the deflection's.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Moves {
+    /// Not at all: the offset, time and the mains.
+    Not,
+    /// As the clean deflection's power `p` (the detector's nonlinearity), whose derivative
+    /// is `p·vᵖ⁻¹·∂v`.
+    PowerOfDeflection(i32),
+    /// Through parts of the simulation the tangent does not carry: the drag's base path and
+    /// lever share, a wandering drift's share.
+    Untracked,
 }
 
 /// One catalog effect, as a module of the twin.
@@ -1838,11 +1855,12 @@ impl Problem {
     /// relaxation's), and the nominal actuator's lag and damping where its mode acts on the
     /// drive a step either way and the actuator is not hysteretic; and the effects' own
     /// parameters that act in the contact ([`effect_tangents`]). Empty where a closed-form
-    /// column is built from the simulation (the drag, the detector's nonlinearity, a
-    /// wandering drift), whose own derivatives the tangent does not carry.
+    /// column is built from parts of the simulation the tangent does not carry (the drag's
+    /// base path and lever share, a wandering drift's share); the detector's nonlinearity,
+    /// a power of the deflection, moves with the deflection's own derivative ([`Moves`]).
     pub fn tangent_covers(&self, spec: &ModelSpec, th: &[f64]) -> Vec<usize> {
         let from_simulation = spec.effects.iter().any(|&e| match e {
-            Effect::HydrodynamicDrag | Effect::DetectorNonlinearity => true,
+            Effect::HydrodynamicDrag => true,
             Effect::ThermalDrift => spec.drift == DriftForm::Wandering,
             _ => false,
         });
@@ -2155,7 +2173,7 @@ impl Problem {
         let mut terms: Vec<(f64, Vec<f64>)> = vec![];
         if spec.has(Effect::DetectorNonlinearity) {
             let cols = nonlinearity_columns(spec.nonlinearity, &deflection);
-            for (k, col) in cols.into_iter().enumerate() {
+            for (k, (_, col)) in cols.into_iter().enumerate() {
                 terms.push((*linear.get(at(Effect::DetectorNonlinearity) + k)?, col));
             }
         }
@@ -2344,15 +2362,17 @@ impl Problem {
                 white: Cow::Borrowed(&white[..]),
                 fixed: Some(c.index()),
                 span: 0..n,
+                moves: Moves::Not,
             }
         };
-        let owned = |c: Vec<f64>| {
+        let owned = |c: Vec<f64>, moves: Moves| {
             let wc = self.whiten(&c);
             Regressor {
                 raw: Cow::Owned(c),
                 white: Cow::Owned(wc),
                 fixed: None,
                 span: 0..n,
+                moves,
             }
         };
         // A column zero outside a stretch is whitened over that stretch and the filter's
@@ -2370,6 +2390,7 @@ impl Problem {
                 white: Cow::Owned(wc),
                 fixed: None,
                 span: from..to,
+                moves: Moves::Untracked,
             }
         };
         let mut cols = vec![borrowed(FixedColumn::Offset)];
@@ -2398,11 +2419,14 @@ impl Problem {
                     }
                 }
                 Effect::HydrodynamicDrag => {
-                    cols.push(owned(self.drag_column(&sim.base_nm, &sim.lever_share)));
+                    cols.push(owned(
+                        self.drag_column(&sim.base_nm, &sim.lever_share),
+                        Moves::Untracked,
+                    ));
                 }
                 Effect::DetectorNonlinearity => {
-                    for col in nonlinearity_columns(spec.nonlinearity, &sim.clean_v) {
-                        cols.push(owned(col));
+                    for (p, col) in nonlinearity_columns(spec.nonlinearity, &sim.clean_v) {
+                        cols.push(owned(col, Moves::PowerOfDeflection(p)));
                     }
                 }
                 _ => {}
@@ -2575,15 +2599,37 @@ impl Problem {
             }
         }
         let s = self.sigma_w_v;
-        if regs.iter().all(|r| r.fixed.is_some()) {
+        if regs.iter().all(|r| r.moves != Moves::Untracked) {
             for dm in tangent {
-                // The residual moves by −∂m, its coefficients by −(AᵀA)⁻¹Aᵀ·W·∂m.
-                let wd = self.whiten(dm);
+                // Variable projection's derivative in full (Golub and Pereyra 1973), in the
+                // whitened train rows: with the columns A moving by ∂A, the coefficients by
+                // ∂c = (AᵀA)⁻¹(Aᵀ·(−∂m − ∂A·c) + ∂Aᵀ·r) and the residual r by
+                // −∂m − ∂A·c − A·∂c. Where no column moves, the first term alone.
+                let moved: Vec<Option<Vec<f64>>> = (regs.iter())
+                    .map(|r| match r.moves {
+                        Moves::PowerOfDeflection(p) => {
+                            let d: Vec<f64> = (sim.clean_v.iter().zip(dm))
+                                .map(|(v, d)| f64::from(p) * v.powi(p - 1) * d)
+                                .collect();
+                            Some(self.whiten(&d))
+                        }
+                        Moves::Not | Moves::Untracked => None,
+                    })
+                    .collect();
+                // ∂m + ∂A·c, whitened.
+                let mut pushed = self.whiten(dm);
+                for (c, d) in linear.iter().zip(&moved) {
+                    if let Some(d) = d {
+                        pushed.iter_mut().zip(d).for_each(|(p, d)| *p += c * d);
+                    }
+                }
                 let atb = DVector::from_fn(m, |a, _| {
-                    -(scaled[a]
-                        .iter()
-                        .zip(train)
-                        .fold(0.0, |s, (x, &i)| s + x * wd[i]))
+                    let along =
+                        (scaled[a].iter().zip(train)).fold(0.0, |s, (x, &i)| s + x * pushed[i]);
+                    let turn = moved[a].as_ref().map_or(0.0, |d| {
+                        train.iter().fold(0.0, |s, &i| s + d[i] * wres[i]) / norms[a]
+                    });
+                    turn - along
                 });
                 let dc = chol.solve(&atb);
                 let dlinear: Vec<f64> = (0..m).map(|a| dc[a] / norms[a]).collect();
@@ -2592,7 +2638,7 @@ impl Problem {
                         let fitted: f64 = (dlinear.iter().zip(&regs))
                             .map(|(c, r)| c * r.white[i])
                             .sum();
-                        (-wd[i] - fitted) / s
+                        (-pushed[i] - fitted) / s
                     })
                     .collect();
                 columns.push((column, dlinear));
@@ -2798,14 +2844,14 @@ fn blunted(declared: TipConfig, depth_nm: f64) -> TipConfig {
 }
 
 /// The detector nonlinearity's regressors of a clean deflection `v` (V): v², v³ or both, as
-/// `form` has them.
-fn nonlinearity_columns(form: NonlinearityForm, v: &[f64]) -> Vec<Vec<f64>> {
+/// `form` has them, each with its power.
+fn nonlinearity_columns(form: NonlinearityForm, v: &[f64]) -> Vec<(i32, Vec<f64>)> {
     let mut cols = vec![];
     if form != NonlinearityForm::Cubic {
-        cols.push(v.iter().map(|v| v * v).collect());
+        cols.push((2, v.iter().map(|v| v * v).collect()));
     }
     if form != NonlinearityForm::Quadratic {
-        cols.push(v.iter().map(|v| v * v * v).collect());
+        cols.push((3, v.iter().map(|v| v * v * v).collect()));
     }
     cols
 }
