@@ -626,7 +626,7 @@ fn real_jpk_diagnose_json_keeps_the_documented_keys() {
             .get("outdone_by")
             .expect("every effect says whether a pair outdid it");
         assert!(outdone.is_null(), "{e}");
-        // No mode rung by the room: the pull-off and the drag leave no narrow peak.
+        // No mode rung by the room: the pull-off and a second effect leave no narrow peak.
         assert_eq!(e["rung_by_surroundings"], false, "{e}");
         for (name, p) in e["params"].as_object().expect("params") {
             finite(p, "value");
@@ -652,7 +652,8 @@ fn real_jpk_diagnose_json_keeps_the_documented_keys() {
     assert!((removed.powi(2) - (before.powi(2) - after.powi(2))).abs() < 1e-12);
     let floor = finite(&v, "fit.noise_floor_nrmse");
     assert!(floor > 0.0 && floor < after, "floor {floor}");
-    // The gel's residual after adhesion and drag is still far above the floor, and says so.
+    // The gel's residual after adhesion and its second effect (a drag or the detector's
+    // curvature, as the fit's path goes) is still far above the floor, and says so.
     assert_eq!(v["fit"]["after_at_floor"], false);
     let locations = v["locations"].as_array().expect("locations[]");
     let pull_off = locations
