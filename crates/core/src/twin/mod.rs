@@ -614,6 +614,16 @@ pub struct Twin {
 /// (ν ≈ 0.5): `1 + Σ cₖ·χᵏ`, k = 1…4, in the ratio χ of the contact radius to the thickness.
 const DIMITRIADIS_FILM: [f64; 4] = [1.133, 1.283, 0.769, 0.0975];
 
+/// [`DIMITRIADIS_FILM`]'s factor at χ and its derivative in χ, in one place for the contact
+/// solve and the tangent. The derivative's coefficients are the factor's times their powers
+/// (exact in binary: the same bits as the literals they replaced).
+fn dimitriadis_factor_and_slope(chi: f64) -> (f64, f64) {
+    let [c1, c2, c3, c4] = DIMITRIADIS_FILM;
+    let factor = 1.0 + c1 * chi + c2 * chi.powi(2) + c3 * chi.powi(3) + c4 * chi.powi(4);
+    let slope = c1 + (2.0 * c2) * chi + (3.0 * c3) * chi.powi(2) + (4.0 * c4) * chi.powi(3);
+    (factor, slope)
+}
+
 impl Twin {
     /// Builds a twin; call [`TwinConfig::validate`] first — invalid values give nonsense here.
     pub fn new(cfg: &TwinConfig, fs_hz: f64) -> Self {
@@ -929,19 +939,13 @@ impl Twin {
         // coefficients; this twin does not carry them.)
         //
         // The factor and its derivative in h, through the contact radius's: the contact
-        // solve's Newton steps need the whole slope of `film(h)·h^k`. The derivative's
-        // coefficients are the factor's times their powers (exact in binary: the same bits
-        // as the literals they replaced).
-        let [c1, c2, c3, c4] = DIMITRIADIS_FILM;
+        // solve's Newton steps need the whole slope of `film(h)·h^k`.
         let film_and_slope = |h_m: f64| -> Option<(f64, f64)> {
             match s.thickness_nm {
                 Some(th) if h_m > 0.0 => {
                     let (a, da_dh) = shape.contact_radius_and_slope(h_m);
                     let chi = a / (th * 1e-9);
-                    let factor =
-                        1.0 + c1 * chi + c2 * chi.powi(2) + c3 * chi.powi(3) + c4 * chi.powi(4);
-                    let dfactor_dchi =
-                        c1 + (2.0 * c2) * chi + (3.0 * c3) * chi.powi(2) + (4.0 * c4) * chi.powi(3);
+                    let (factor, dfactor_dchi) = dimitriadis_factor_and_slope(chi);
                     Some((factor, dfactor_dchi * da_dh / (th * 1e-9)))
                 }
                 _ => None,
@@ -1327,12 +1331,9 @@ fn filmed_slope_at(shape: &ShapeFunction, thickness_nm: Option<f64>, h_m: f64) -
     let (y, dy) = shape.y_and_slope(h_m);
     match thickness_nm {
         Some(th) if h_m > 0.0 => {
-            let [c1, c2, c3, c4] = DIMITRIADIS_FILM;
             let (a, da_dh) = shape.contact_radius_and_slope(h_m);
             let chi = a / (th * 1e-9);
-            let factor = 1.0 + c1 * chi + c2 * chi.powi(2) + c3 * chi.powi(3) + c4 * chi.powi(4);
-            let dfactor_dchi =
-                c1 + (2.0 * c2) * chi + (3.0 * c3) * chi.powi(2) + (4.0 * c4) * chi.powi(3);
+            let (factor, dfactor_dchi) = dimitriadis_factor_and_slope(chi);
             dy * factor + y * dfactor_dchi * da_dh / (th * 1e-9)
         }
         _ => dy,
@@ -1344,10 +1345,8 @@ fn filmed_slope_at(shape: &ShapeFunction, thickness_nm: Option<f64>, h_m: f64) -
 fn film_factor_move(shape: &ShapeFunction, thickness_nm: Option<f64>, h_m: f64) -> f64 {
     match thickness_nm {
         Some(th) if h_m > 0.0 => {
-            let [c1, c2, c3, c4] = DIMITRIADIS_FILM;
             let chi = shape.contact_radius_and_slope(h_m).0 / (th * 1e-9);
-            let dfactor_dchi =
-                c1 + (2.0 * c2) * chi + (3.0 * c3) * chi.powi(2) + (4.0 * c4) * chi.powi(3);
+            let (_, dfactor_dchi) = dimitriadis_factor_and_slope(chi);
             shape.y_and_slope(h_m).0 * dfactor_dchi * -chi
         }
         _ => 0.0,
