@@ -6,7 +6,9 @@
 //! of the twin carrying their derivatives ([`crate::twin::tangent`]); the rest (the
 //! hysteresis's, a channel delay's, a tip's, a neck's length, and every column of a model
 //! with a drag or a wandering drift, closed-form terms built from parts of the simulation
-//! the tangent does not follow) cost one simulation each, by forward differences.
+//! the tangent does not follow) cost one simulation each, by forward differences. Where the
+//! whole Jacobian is one tangent run, that run starts beside each trial's evaluation and is
+//! taken if the solver accepts the trial (`fit_params_tied`): the same fit, sooner.
 
 use super::model::{frees_parameter, Evaluation, ModelSpec, Problem};
 use crate::estimate::lm::{solve_lazy, Damping, LmOptions, Stall};
@@ -54,49 +56,40 @@ fn jacobian_with(
     ties: &[(usize, usize)],
     fan: &dyn Fan,
     use_tangent: bool,
+    ahead: Option<AheadTangent>,
 ) -> Option<(DMatrix<f64>, DMatrix<f64>)> {
     let r0 = &base.train_residuals;
-    // The columns from the tangent: each parameter with every parameter tied to it covered.
-    let covers = if use_tangent {
-        problem.tangent_covers(spec, th)
-    } else {
-        Vec::new()
-    };
-    let moves = |i: usize| {
-        std::iter::once(i).chain(
-            (ties.iter())
-                .filter(move |&&(lead, _)| lead == i)
-                .map(|t| t.1),
-        )
-    };
-    let by_tangent: Vec<usize> = (0..which.len())
-        .filter(|&c| moves(which[c]).all(|i| covers.contains(&i)))
-        .collect();
-    let tangent_params: Vec<usize> = {
-        let mut p: Vec<usize> = by_tangent.iter().flat_map(|&c| moves(which[c])).collect();
-        p.sort_unstable();
-        p.dedup();
-        p
-    };
-    let by_difference: Vec<usize> = (0..which.len())
-        .filter(|c| !by_tangent.contains(c))
-        .collect();
+    let moves = |i: usize| moved_with(i, ties);
+    let JacobianPlan {
+        by_tangent,
+        tangent_params,
+        by_difference,
+    } = plan_jacobian(problem, spec, th, which, ties, use_tangent);
+    let with_tangent = !tangent_params.is_empty();
+    // The tangent's run made ahead at this θ for these parameters (`fit_params_tied`)
+    // stands for job 0, and is counted now, where the run would have been.
+    let taken = ahead
+        .filter(|a| with_tangent && a.th == th && a.params == tangent_params)
+        .map(|a| a.columns);
+    if taken.is_some() {
+        problem.count_simulation();
+    }
+    let run_tangent = with_tangent && taken.is_none();
     // A column that fails fails the Jacobian: the columns not yet started are skipped then
     // (all of them after it when the fan is serial, as a plain loop would). Job 0 is the
     // tangent's run, where it has columns to give.
     let failed = AtomicBool::new(false);
-    let with_tangent = !tangent_params.is_empty();
-    let jobs = by_difference.len() + usize::from(with_tangent);
+    let jobs = by_difference.len() + usize::from(run_tangent);
     let mut outcomes = fan::map(fan, jobs, |job| {
         if failed.load(Ordering::Relaxed) {
             return None;
         }
-        if with_tangent && job == 0 {
+        if run_tangent && job == 0 {
             return Some(Err(problem
                 .evaluate_with_tangent(spec, th, &tangent_params)
                 .map(|(_, columns)| columns)));
         }
-        let c = by_difference[job - usize::from(with_tangent)];
+        let c = by_difference[job - usize::from(run_tangent)];
         let i = which[c];
         // Forward difference; backward where the forward point is not physical (a bound).
         let mut h = FD_STEP;
@@ -125,13 +118,13 @@ fn jacobian_with(
     });
     let mut jac = DMatrix::<f64>::zeros(r0.len(), which.len());
     let mut linear = DMatrix::<f64>::zeros(base.linear.len(), which.len());
-    let tangent = if with_tangent {
+    let tangent = if run_tangent {
         match outcomes.remove(0)? {
             Err(tangent) => tangent,
             Ok(_) => None,
         }
     } else {
-        None
+        taken
     };
     match tangent {
         Some(columns) => {
@@ -154,7 +147,7 @@ fn jacobian_with(
         // model alone): those columns by differences too.
         None if with_tangent => {
             let picked: Vec<usize> = by_tangent.iter().map(|&c| which[c]).collect();
-            let (j, l) = jacobian_with(problem, spec, th, base, &picked, ties, fan, false)?;
+            let (j, l) = jacobian_with(problem, spec, th, base, &picked, ties, fan, false, None)?;
             for (n, &c) in by_tangent.iter().enumerate() {
                 jac.set_column(c, &j.column(n));
                 linear.set_column(c, &l.column(n));
@@ -176,7 +169,9 @@ fn jacobian_with(
     Some((jac, linear))
 }
 
-/// [`jacobian_with`] the twin's tangent where it has one.
+/// [`jacobian_with`] the twin's tangent where it has one, taking the run made `ahead` where
+/// it is this Jacobian's.
+#[allow(clippy::too_many_arguments)]
 fn jacobian(
     problem: &Problem,
     spec: &ModelSpec,
@@ -185,8 +180,82 @@ fn jacobian(
     which: &[usize],
     ties: &[(usize, usize)],
     fan: &dyn Fan,
+    ahead: Option<AheadTangent>,
 ) -> Option<(DMatrix<f64>, DMatrix<f64>)> {
-    jacobian_with(problem, spec, th, base, which, ties, fan, true)
+    jacobian_with(problem, spec, th, base, which, ties, fan, true, ahead)
+}
+
+/// `i` and every parameter tied to follow it: what a step in `i` moves.
+fn moved_with(i: usize, ties: &[(usize, usize)]) -> impl Iterator<Item = usize> + '_ {
+    std::iter::once(i).chain(
+        (ties.iter())
+            .filter(move |&&(lead, _)| lead == i)
+            .map(|t| t.1),
+    )
+}
+
+/// Which of a Jacobian's columns come from the tangent and which by differences.
+struct JacobianPlan {
+    /// Columns (indices into `which`) whose parameters, and all tied to them, it covers.
+    by_tangent: Vec<usize>,
+    /// The θ indices its run carries, sorted.
+    tangent_params: Vec<usize>,
+    /// The other columns.
+    by_difference: Vec<usize>,
+}
+
+fn plan_jacobian(
+    problem: &Problem,
+    spec: &ModelSpec,
+    th: &[f64],
+    which: &[usize],
+    ties: &[(usize, usize)],
+    use_tangent: bool,
+) -> JacobianPlan {
+    let covers = if use_tangent {
+        problem.tangent_covers(spec, th)
+    } else {
+        Vec::new()
+    };
+    let by_tangent: Vec<usize> = (0..which.len())
+        .filter(|&c| moved_with(which[c], ties).all(|i| covers.contains(&i)))
+        .collect();
+    let mut tangent_params: Vec<usize> = (by_tangent.iter())
+        .flat_map(|&c| moved_with(which[c], ties))
+        .collect();
+    tangent_params.sort_unstable();
+    tangent_params.dedup();
+    let by_difference: Vec<usize> = (0..which.len())
+        .filter(|c| !by_tangent.contains(c))
+        .collect();
+    JacobianPlan {
+        by_tangent,
+        tangent_params,
+        by_difference,
+    }
+}
+
+// The tests compare fits with and without the run ahead; nothing else turns it off.
+#[cfg(test)]
+thread_local! {
+    static NO_RUN_AHEAD: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+/// Whether a fit's tangent run starts ahead of its Jacobian (`fit_params_tied`).
+fn runs_ahead() -> bool {
+    #[cfg(test)]
+    if NO_RUN_AHEAD.with(|c| c.get()) {
+        return false;
+    }
+    true
+}
+
+/// A tangent run made at a trial point before the solver has judged it
+/// (`fit_params_tied`): at θ `th`, the columns of `params`.
+struct AheadTangent {
+    th: Vec<f64>,
+    params: Vec<usize>,
+    columns: Vec<(Vec<f64>, Vec<f64>)>,
 }
 
 /// Options of one fit.
@@ -273,9 +342,53 @@ fn fit_params_tied(
     // accepts exactly those), so the best one seen is the model at the solution, and the raw
     // residuals the finite differences start from.
     let best: std::cell::RefCell<Option<(f64, Evaluation)>> = Default::default();
+    // The solver asks for the Jacobian at exactly the points it accepts, right after their
+    // residuals. Where the whole Jacobian is one tangent run, that run starts beside the
+    // trial's plain evaluation, as a second job of the fan: on an idle core it is done by
+    // the time the step is judged, and the fit's serial chain of evaluation, then Jacobian,
+    // loses one link per step. It is given up (and never counted) once the trial is
+    // rejected; on a busy fan it runs after the evaluation, only for an accepted trial. The
+    // Jacobian takes it as the run it would have made (the same θ and parameters): the fit
+    // is the same to the bit, and so is the count of simulations.
+    let ahead: std::cell::RefCell<Option<AheadTangent>> = Default::default();
     let residuals = |x: &[f64]| {
-        let e = problem.evaluate(spec, &full(x))?;
-        let r = project(DVector::from_column_slice(&e.train_residuals));
+        let th = full(x);
+        let current = best.borrow().as_ref().map(|(c, _)| *c);
+        let plan = plan_jacobian(problem, spec, &th, free, ties, true);
+        let speculate =
+            plan.by_difference.is_empty() && !plan.tangent_params.is_empty() && runs_ahead();
+        // Set once the trial is known rejected: the run ahead stops.
+        let rejected = AtomicBool::new(false);
+        let mut jobs = fan::map(fan, 1 + usize::from(speculate), |job| {
+            if job == 0 {
+                let e = problem.evaluate(spec, &th);
+                let r = e
+                    .as_ref()
+                    .map(|e| project(DVector::from_column_slice(&e.train_residuals)));
+                // As the solver judges it: a finite cost below the current point's.
+                let taken = r.as_ref().is_some_and(|r| {
+                    let cost = r.norm_squared();
+                    cost.is_finite() && current.is_none_or(|c| cost < c)
+                });
+                if !taken {
+                    rejected.store(true, Ordering::Relaxed);
+                }
+                (e.zip(r), None)
+            } else if rejected.load(Ordering::Relaxed) {
+                (None, None)
+            } else {
+                let columns =
+                    problem.tangent_columns_ahead(spec, &th, &plan.tangent_params, &rejected);
+                (None, columns)
+            }
+        });
+        let columns = jobs.get_mut(1).and_then(|(_, c)| c.take());
+        let (e, r) = jobs.swap_remove(0).0?;
+        *ahead.borrow_mut() = columns.map(|columns| AheadTangent {
+            th,
+            params: plan.tangent_params,
+            columns,
+        });
         let cost = r.norm_squared();
         let mut b = best.borrow_mut();
         if b.as_ref().is_none_or(|(c, _)| cost < *c) {
@@ -286,7 +399,17 @@ fn fit_params_tied(
     let linear_jacobian: std::cell::RefCell<DMatrix<f64>> = Default::default();
     let jacobian_at = |x: &[f64], _: &DVector<f64>| {
         let b = best.borrow();
-        let (j, l) = jacobian(problem, spec, &full(x), &b.as_ref()?.1, free, ties, fan)?;
+        let pre = ahead.borrow_mut().take();
+        let (j, l) = jacobian(
+            problem,
+            spec,
+            &full(x),
+            &b.as_ref()?.1,
+            free,
+            ties,
+            fan,
+            pre,
+        )?;
         *linear_jacobian.borrow_mut() = l;
         Some(match project_out {
             None => j,
@@ -1314,6 +1437,52 @@ pub(crate) mod tests {
         let (before, after) = (held.eval.chi2_train / n, freed.eval.chi2_train / n);
         assert!((q_fitted - q).abs() < 0.05, "Q {q_fitted} vs {q}");
         assert!(before > 1.5 && after < 1.1, "χ²/sample {before} → {after}");
+    }
+
+    /// The tangent run made ahead of a Jacobian (`fit_params_tied`) is the one the Jacobian
+    /// would have made: the fit's last Jacobian, taken from it, equals one computed afresh
+    /// at the fit's θ, and a fan that runs the run ahead first, before the trial is judged
+    /// (every trial's, the rejected too), leaves the fit and its count of simulations as
+    /// they were without it.
+    #[test]
+    fn a_tangent_run_ahead_is_the_jacobians_own() {
+        let (problem, th0) = problem();
+        let spec = ModelSpec::nominal(MATERIAL_TERMS);
+        let opts = FitOptions {
+            max_iterations: 6,
+            max_step: 1.0,
+            stall: None,
+        };
+        let mut start = th0.clone();
+        start[0] += 0.05;
+        let counted = |fan: &dyn Fan| {
+            let n0 = problem.simulations();
+            let f = fit_model(&problem, &spec, &[start.clone()], opts, fan).expect("fit");
+            (f, problem.simulations() - n0)
+        };
+        NO_RUN_AHEAD.with(|c| c.set(true));
+        let (plain, n_plain) = counted(&Serial);
+        NO_RUN_AHEAD.with(|c| c.set(false));
+        let (a, na) = counted(&Serial);
+        assert_ne!(a.theta, start, "the fit moved");
+        assert_eq!(a.theta, plain.theta);
+        assert_eq!(a.jacobian, plain.jacobian);
+        assert_eq!(na, n_plain);
+        let fresh = jacobian(
+            &problem,
+            &spec,
+            &a.theta,
+            &a.eval,
+            &a.free,
+            &[],
+            &Serial,
+            None,
+        );
+        assert_eq!(a.jacobian, fresh.expect("a Jacobian").0);
+        let (b, nb) = counted(&Reversed);
+        assert_eq!(nb, na);
+        assert_eq!(a.theta, b.theta);
+        assert_eq!(a.jacobian, b.jacobian);
     }
 
     #[test]

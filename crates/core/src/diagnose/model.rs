@@ -23,6 +23,7 @@ use crate::twin::{
 };
 use nalgebra::{DMatrix, DVector};
 use std::borrow::Cow;
+use std::sync::atomic::AtomicBool;
 
 /// A column of the closed-form part: raw, whitened, and its index among the
 /// [`FixedColumns`] where it is one of them.
@@ -1963,11 +1964,43 @@ impl Problem {
         th: &[f64],
         which: &[usize],
     ) -> Option<(Evaluation, Vec<(Vec<f64>, Vec<f64>)>)> {
+        self.evaluate_with_tangent_as(spec, th, which, None)
+    }
+
+    /// The columns of [`Problem::evaluate_with_tangent`], run ahead of the Jacobian that may
+    /// ask for them (`fit::fit_params_tied`): not counted as a simulation (the Jacobian
+    /// counts it when it takes them), and given up, `None`, once `stop` is set.
+    #[allow(clippy::type_complexity)]
+    pub(crate) fn tangent_columns_ahead(
+        &self,
+        spec: &ModelSpec,
+        th: &[f64],
+        which: &[usize],
+        stop: &AtomicBool,
+    ) -> Option<Vec<(Vec<f64>, Vec<f64>)>> {
+        self.evaluate_with_tangent_as(spec, th, which, Some(stop))
+            .map(|(_, columns)| columns)
+    }
+
+    /// Counts a simulation run apart from its use ([`Problem::tangent_columns_ahead`]).
+    pub(crate) fn count_simulation(&self) {
+        self.simulations
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    }
+
+    #[allow(clippy::type_complexity)]
+    fn evaluate_with_tangent_as(
+        &self,
+        spec: &ModelSpec,
+        th: &[f64],
+        which: &[usize],
+        ahead: Option<&AtomicBool>,
+    ) -> Option<(Evaluation, Vec<(Vec<f64>, Vec<f64>)>)> {
         let covers = self.tangent_covers(spec, th);
         if which.iter().any(|i| !covers.contains(i)) {
             return None;
         }
-        let (sim, deflection) = self.simulate_with_tangent(spec, th, which)?;
+        let (sim, deflection) = self.simulate_with_tangent(spec, th, which, ahead)?;
         let mut columns = Vec::new();
         let eval = self.evaluate_simulation(spec, th, sim, &deflection, &mut columns)?;
         (columns.len() == which.len()).then_some((eval, columns))
@@ -1975,14 +2008,22 @@ impl Problem {
 
     /// [`Problem::simulate`] with the twin's tangent: also how the clean deflection (V)
     /// moves with each parameter of `which` (θ indices in [`Problem::tangent_covers`]).
+    /// Run `ahead` of its use, it is not counted, and stops where that flag is set.
     fn simulate_with_tangent(
         &self,
         spec: &ModelSpec,
         th: &[f64],
         which: &[usize],
+        ahead: Option<&AtomicBool>,
     ) -> Option<(Simulation, Vec<Vec<f64>>)> {
         use crate::twin::tangent::TangentParam as P;
-        let cfg = self.start_simulation(spec, th)?;
+        let cfg = match ahead {
+            None => self.start_simulation(spec, th)?,
+            Some(_) => self.physical_config(spec, th)?,
+        };
+        // Checked every `STOP_EVERY` samples: a few microseconds' work between looks.
+        const STOP_EVERY: usize = 256;
+        let stopped = || ahead.is_some_and(|s| s.load(std::sync::atomic::Ordering::Relaxed));
         let drive = self.twin_drive(spec, th);
         let drive = &drive[..];
         let mut twin = Twin::new(&cfg, self.fs_hz);
@@ -2070,6 +2111,9 @@ impl Problem {
         let mut columns: Vec<Vec<f64>> = vec![Vec::with_capacity(n); which.len()];
         let mut dbase = vec![0.0; base_moves.len()];
         for (k, &d) in drive.iter().enumerate() {
+            if k % STOP_EVERY == 0 && stopped() {
+                return None;
+            }
             for (out, m) in dbase.iter_mut().zip(&base_moves) {
                 *out = m[k];
             }
@@ -2094,6 +2138,13 @@ impl Problem {
     /// The twin of θ, counted as one simulation; `None` where θ is not finite or the twin
     /// not physical (its configuration invalid, or a tip the diagnosis may not fit).
     fn start_simulation(&self, spec: &ModelSpec, th: &[f64]) -> Option<TwinConfig> {
+        let cfg = self.physical_config(spec, th)?;
+        self.count_simulation();
+        Some(cfg)
+    }
+
+    /// The twin of θ where it may be simulated, uncounted (see [`Problem::start_simulation`]).
+    fn physical_config(&self, spec: &ModelSpec, th: &[f64]) -> Option<TwinConfig> {
         if th.iter().any(|v| !v.is_finite()) {
             return None;
         }
@@ -2101,8 +2152,6 @@ impl Problem {
         if !cfg.validate("").is_empty() || !tip_is_convex(&cfg.tip) {
             return None;
         }
-        self.simulations
-            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         Some(cfg)
     }
 
