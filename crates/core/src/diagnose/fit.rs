@@ -69,9 +69,11 @@ fn jacobian_with(
     // The tangent's run made ahead at this θ for these parameters (`fit_params_tied`)
     // stands for job 0, and is counted now, where the run would have been.
     let taken = ahead
-        .filter(|a| with_tangent && a.th == th && a.params == tangent_params)
+        .filter(|a| a.th == th && a.params == tangent_params)
         .map(|a| a.columns);
     if taken.is_some() {
+        #[cfg(test)]
+        AHEAD_TAKEN.with(|c| c.set(c.get() + 1));
         problem.count_simulation();
     }
     let run_tangent = with_tangent && taken.is_none();
@@ -235,10 +237,12 @@ fn plan_jacobian(
     }
 }
 
-// The tests compare fits with and without the run ahead; nothing else turns it off.
+// The tests compare fits with and without the run ahead (nothing else turns it off), and
+// count the Jacobians that took one.
 #[cfg(test)]
 thread_local! {
     static NO_RUN_AHEAD: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+    static AHEAD_TAKEN: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
 }
 
 /// Whether a fit's tangent run starts ahead of its Jacobian (`fit_params_tied`).
@@ -359,7 +363,7 @@ fn fit_params_tied(
             plan.by_difference.is_empty() && !plan.tangent_params.is_empty() && runs_ahead();
         // Set once the trial is known rejected: the run ahead stops.
         let rejected = AtomicBool::new(false);
-        let mut jobs = fan::map(fan, 1 + usize::from(speculate), |job| {
+        let jobs = fan::map(fan, 1 + usize::from(speculate), |job| {
             if job == 0 {
                 let e = problem.evaluate(spec, &th);
                 let r = e
@@ -382,8 +386,10 @@ fn fit_params_tied(
                 (None, columns)
             }
         });
-        let columns = jobs.get_mut(1).and_then(|(_, c)| c.take());
-        let (e, r) = jobs.swap_remove(0).0?;
+        let mut jobs = jobs.into_iter();
+        let (evaluated, _) = jobs.next()?;
+        let columns = jobs.next().and_then(|(_, columns)| columns);
+        let (e, r) = evaluated?;
         *ahead.borrow_mut() = columns.map(|columns| AheadTangent {
             th,
             params: plan.tangent_params,
@@ -1455,15 +1461,25 @@ pub(crate) mod tests {
         };
         let mut start = th0.clone();
         start[0] += 0.05;
+        // The fit, its count of simulations, and how many of its Jacobians took a run ahead.
         let counted = |fan: &dyn Fan| {
             let n0 = problem.simulations();
+            AHEAD_TAKEN.with(|c| c.set(0));
             let f = fit_model(&problem, &spec, &[start.clone()], opts, fan).expect("fit");
-            (f, problem.simulations() - n0)
+            (f, problem.simulations() - n0, AHEAD_TAKEN.with(|c| c.get()))
         };
         NO_RUN_AHEAD.with(|c| c.set(true));
-        let (plain, n_plain) = counted(&Serial);
+        let (plain, n_plain, taken_plain) = counted(&Serial);
         NO_RUN_AHEAD.with(|c| c.set(false));
-        let (a, na) = counted(&Serial);
+        let (a, na, taken) = counted(&Serial);
+        assert_eq!(taken_plain, 0);
+        // Every Jacobian took its run ahead: the start's and one per iteration, each of
+        // which this fit accepts (a Jacobian runs only at accepted points).
+        assert_eq!(
+            taken,
+            1 + opts.max_iterations,
+            "Jacobians that took a run ahead"
+        );
         assert_ne!(a.theta, start, "the fit moved");
         assert_eq!(a.theta, plain.theta);
         assert_eq!(a.jacobian, plain.jacobian);
@@ -1479,7 +1495,8 @@ pub(crate) mod tests {
             None,
         );
         assert_eq!(a.jacobian, fresh.expect("a Jacobian").0);
-        let (b, nb) = counted(&Reversed);
+        let (b, nb, taken_reversed) = counted(&Reversed);
+        assert_eq!(taken_reversed, taken);
         assert_eq!(nb, na);
         assert_eq!(a.theta, b.theta);
         assert_eq!(a.jacobian, b.jacobian);

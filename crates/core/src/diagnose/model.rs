@@ -2649,20 +2649,28 @@ impl Problem {
         }
         let s = self.sigma_w_v;
         if regs.iter().all(|r| r.moves != Moves::Untracked) {
+            // Each moving column's derivative in the clean deflection, `p·vᵖ⁻¹` per sample:
+            // the same for every parameter's `∂v`.
+            let slopes: Vec<Option<Vec<f64>>> = (regs.iter())
+                .map(|r| match r.moves {
+                    Moves::PowerOfDeflection(p) => Some(
+                        (sim.clean_v.iter())
+                            .map(|v| f64::from(p) * v.powi(p - 1))
+                            .collect(),
+                    ),
+                    Moves::Not | Moves::Untracked => None,
+                })
+                .collect();
             for dm in tangent {
                 // Variable projection's derivative in full (Golub and Pereyra 1973), in the
                 // whitened train rows: with the columns A moving by ∂A, the coefficients by
                 // ∂c = (AᵀA)⁻¹(Aᵀ·(−∂m − ∂A·c) + ∂Aᵀ·r) and the residual r by
                 // −∂m − ∂A·c − A·∂c. Where no column moves, the first term alone.
-                let moved: Vec<Option<Vec<f64>>> = (regs.iter())
-                    .map(|r| match r.moves {
-                        Moves::PowerOfDeflection(p) => {
-                            let d: Vec<f64> = (sim.clean_v.iter().zip(dm))
-                                .map(|(v, d)| f64::from(p) * v.powi(p - 1) * d)
-                                .collect();
-                            Some(self.whiten(&d))
-                        }
-                        Moves::Not | Moves::Untracked => None,
+                let moved: Vec<Option<Vec<f64>>> = (slopes.iter())
+                    .map(|slope| {
+                        let slope = slope.as_ref()?;
+                        let d: Vec<f64> = slope.iter().zip(dm).map(|(k, d)| k * d).collect();
+                        Some(self.whiten(&d))
                     })
                     .collect();
                 // ∂m + ∂A·c, whitened.
