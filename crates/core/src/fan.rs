@@ -17,6 +17,14 @@ pub trait Fan: Sync {
     /// Calls `job(i)` exactly once for every `i` in `0..n`, in any order and possibly
     /// concurrently, and returns when all have returned.
     fn run(&self, n: usize, job: &(dyn Fn(usize) + Sync));
+
+    /// How many of its threads run none of its jobs now, as far as it knows: a hint to a
+    /// caller that could cut one job in several (a Jacobian's tangent run in two halves,
+    /// `diagnose::fit`) that they would run side by side. What a caller computes must not
+    /// depend on it, only how fast. None, unless the fan says otherwise.
+    fn idle_threads(&self) -> usize {
+        0
+    }
 }
 
 /// One job after the other, on the caller's thread.

@@ -9,12 +9,15 @@
 
 use anyhow::Context;
 use rayon::prelude::*;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use viscoprobe_core::fan::Fan;
 
 /// Runs a fan's jobs on a pool of `threads` threads.
 #[derive(Debug)]
 pub struct Threads {
     pool: rayon::ThreadPool,
+    /// Jobs running now, nested ones counted again: [`Fan::idle_threads`]'s reading.
+    running: AtomicUsize,
 }
 
 impl Threads {
@@ -24,7 +27,10 @@ impl Threads {
             .thread_name(|i| format!("viscoprobe-fan-{i}"))
             .build()
             .with_context(|| format!("starting {threads} worker threads"))?;
-        Ok(Self { pool })
+        Ok(Self {
+            pool,
+            running: AtomicUsize::new(0),
+        })
     }
 
     /// As many threads as the machine has cores.
@@ -40,14 +46,24 @@ pub fn cores() -> usize {
 
 impl Fan for Threads {
     fn run(&self, n: usize, job: &(dyn Fn(usize) + Sync)) {
-        self.pool.install(|| (0..n).into_par_iter().for_each(job));
+        self.pool.install(|| {
+            (0..n).into_par_iter().for_each(|i| {
+                self.running.fetch_add(1, Ordering::Relaxed);
+                job(i);
+                self.running.fetch_sub(1, Ordering::Relaxed);
+            })
+        });
+    }
+
+    fn idle_threads(&self) -> usize {
+        let running = self.running.load(Ordering::Relaxed);
+        self.pool.current_num_threads().saturating_sub(running)
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use std::sync::atomic::{AtomicUsize, Ordering};
     use viscoprobe_core::fan::map;
 
     #[test]

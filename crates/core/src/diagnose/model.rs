@@ -1964,25 +1964,27 @@ impl Problem {
         th: &[f64],
         which: &[usize],
     ) -> Option<(Evaluation, Vec<(Vec<f64>, Vec<f64>)>)> {
-        self.evaluate_with_tangent_as(spec, th, which, None)
+        self.evaluate_with_tangent_as(spec, th, which, true, None)
     }
 
-    /// The columns of [`Problem::evaluate_with_tangent`], run ahead of the Jacobian that may
-    /// ask for them (`fit::fit_params_tied`): not counted as a simulation (the Jacobian
-    /// counts it when it takes them), and given up, `None`, once `stop` is set.
+    /// The columns of [`Problem::evaluate_with_tangent`] without its count of a simulation:
+    /// a run made ahead of the Jacobian that may ask for it (`fit::fit_params_tied`; the
+    /// Jacobian counts it when it takes it), or the second half of a Jacobian's tangent split
+    /// in two runs (`fit::jacobian_with`; the first counts the whole). Given up, `None`, once
+    /// `stop` is set.
     #[allow(clippy::type_complexity)]
-    pub(crate) fn tangent_columns_ahead(
+    pub(crate) fn tangent_columns_uncounted(
         &self,
         spec: &ModelSpec,
         th: &[f64],
         which: &[usize],
-        stop: &AtomicBool,
+        stop: Option<&AtomicBool>,
     ) -> Option<Vec<(Vec<f64>, Vec<f64>)>> {
-        self.evaluate_with_tangent_as(spec, th, which, Some(stop))
+        self.evaluate_with_tangent_as(spec, th, which, false, stop)
             .map(|(_, columns)| columns)
     }
 
-    /// Counts a simulation run apart from its use ([`Problem::tangent_columns_ahead`]).
+    /// Counts a simulation run apart from its use ([`Problem::tangent_columns_uncounted`]).
     pub(crate) fn count_simulation(&self) {
         self.simulations
             .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
@@ -1994,13 +1996,14 @@ impl Problem {
         spec: &ModelSpec,
         th: &[f64],
         which: &[usize],
-        ahead: Option<&AtomicBool>,
+        counted: bool,
+        stop: Option<&AtomicBool>,
     ) -> Option<(Evaluation, Vec<(Vec<f64>, Vec<f64>)>)> {
         let covers = self.tangent_covers(spec, th);
         if which.iter().any(|i| !covers.contains(i)) {
             return None;
         }
-        let (sim, deflection) = self.simulate_with_tangent(spec, th, which, ahead)?;
+        let (sim, deflection) = self.simulate_with_tangent(spec, th, which, counted, stop)?;
         let mut columns = Vec::new();
         let eval = self.evaluate_simulation(spec, th, sim, &deflection, &mut columns)?;
         (columns.len() == which.len()).then_some((eval, columns))
@@ -2008,22 +2011,24 @@ impl Problem {
 
     /// [`Problem::simulate`] with the twin's tangent: also how the clean deflection (V)
     /// moves with each parameter of `which` (θ indices in [`Problem::tangent_covers`]).
-    /// Run `ahead` of its use, it is not counted, and stops where that flag is set.
+    /// Counted as a simulation where `counted`; stops where `stop` is set.
     fn simulate_with_tangent(
         &self,
         spec: &ModelSpec,
         th: &[f64],
         which: &[usize],
-        ahead: Option<&AtomicBool>,
+        counted: bool,
+        stop: Option<&AtomicBool>,
     ) -> Option<(Simulation, Vec<Vec<f64>>)> {
         use crate::twin::tangent::TangentParam as P;
-        let cfg = match ahead {
-            None => self.start_simulation(spec, th)?,
-            Some(_) => self.physical_config(spec, th)?,
+        let cfg = if counted {
+            self.start_simulation(spec, th)?
+        } else {
+            self.physical_config(spec, th)?
         };
         // Checked every `STOP_EVERY` samples: a few microseconds' work between looks.
         const STOP_EVERY: usize = 256;
-        let stopped = || ahead.is_some_and(|s| s.load(std::sync::atomic::Ordering::Relaxed));
+        let stopped = || stop.is_some_and(|s| s.load(std::sync::atomic::Ordering::Relaxed));
         let drive = self.twin_drive(spec, th);
         let drive = &drive[..];
         let mut twin = Twin::new(&cfg, self.fs_hz);
@@ -2052,7 +2057,6 @@ impl Problem {
             }
             None => Vec::new(),
         };
-        let mut tangent = twin.tangent_of(&others, &first)?;
         // θ's material terms in the order `material` lists them (the nominal ones, then a
         // missing relaxation's); the twin's series sorts them slowest first, stably.
         let mut terms: Vec<(usize, usize)> = (0..spec.terms)
@@ -2096,9 +2100,19 @@ impl Problem {
                 None => Vec::new(),
             }
         };
-        let mixes: Vec<Vec<(usize, f64)>> = (which.iter())
-            .map(|&i| {
-                (mix(i).into_iter())
+        let mixes: Vec<Vec<(P, f64)>> = which.iter().map(|&i| mix(i)).collect();
+        // The tangent carries only what these columns mix: a run for half a Jacobian's
+        // columns (`fit::jacobian_with`) does half the derivatives' work, each the same.
+        let mut carried: Vec<P> = Vec::new();
+        for &(p, _) in mixes.iter().flatten() {
+            if !carried.contains(&p) {
+                carried.push(p);
+            }
+        }
+        let mut tangent = twin.tangent_carrying(&others, &first, Some(&carried))?;
+        let mixes: Vec<Vec<(usize, f64)>> = (mixes.into_iter())
+            .map(|mix| {
+                (mix.into_iter())
                     .filter_map(|(p, w)| Some((tangent.index(p)?, w)))
                     .collect()
             })

@@ -38,6 +38,11 @@ impl MaterialState {
         }
     }
 
+    /// How many Prony terms the material has.
+    pub fn terms(&self) -> usize {
+        self.terms.len()
+    }
+
     /// `(α, β)` with `y = α·u + β` for the next sample's input `u`.
     pub fn affine(&self) -> (f64, f64) {
         let mut alpha = self.j0;
@@ -72,23 +77,68 @@ impl MaterialState {
 ///
 /// One run carrying these gives every column a finite-difference Jacobian takes one run
 /// each for (`docs/diagnosis-speed.md`); the caller supplies `∂u` from its contact solve
-/// (`∂d/∂θ = −g_θ/g_d`, with `g_θ` from [`Self::affine`]). Not yet used by the twin or the
-/// diagnosis: the first step of that plan.
+/// (`∂d/∂θ = −g_θ/g_d`, with `g_θ` from [`Self::affine`]).
+///
+/// [`Self::carrying`] carries only some of the material's own parameters: a Jacobian split
+/// in two runs on two cores (`diagnose::fit`) carries half its columns in each. Every column
+/// is worked out apart from the others, in the same operations whichever others ride along,
+/// so a column is the same to the bit in either run.
 #[derive(Debug, Clone)]
 pub struct MaterialSensitivity {
     /// Per term, `(∂a/∂ln τ, ∂c/∂ln τ)`: constants of the material, worked out once.
     rates: Vec<(f64, f64)>,
+    /// The material's own parameter each leading column is, in the full order (`ln J0`,
+    /// the terms' `ln J`, their `ln τ`); the columns after them are the `extra` ones.
+    own: Vec<OwnParam>,
+    /// Per term, the column of its `ln τ`, if carried.
+    tau_column: Vec<Option<usize>>,
     /// `∂xᵢ/∂θ_q` at `i·params + q`.
     dx: Vec<f64>,
     /// `∂u/∂θ_q` of the last input: one per parameter.
     du_prev: Vec<f64>,
 }
 
+/// One of a material's own parameters, as a [`MaterialSensitivity`] column carries it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum OwnParam {
+    /// `ln J0`.
+    LongTime,
+    /// Term `i`'s `ln J`.
+    Compliance(usize),
+    /// Term `i`'s `ln τ`.
+    Tau(usize),
+}
+
 impl MaterialSensitivity {
     /// All derivatives zero: a material at rest, as [`MaterialState::new`] leaves it.
     pub fn new(state: &MaterialState, extra: usize) -> Self {
-        let params = 1 + 2 * state.terms.len() + extra;
+        let all: Vec<usize> = (0..1 + 2 * state.terms.len()).collect();
+        Self::carrying(state, &all, extra)
+    }
+
+    /// [`Self::new`] carrying only the material's own parameters `own` (indices in the full
+    /// order: 0 for `ln J0`, `1 + i` for term `i`'s `ln J`, `1 + m + i` for its `ln τ`), in
+    /// that order, then `extra` others.
+    pub fn carrying(state: &MaterialState, own: &[usize], extra: usize) -> Self {
+        let m = state.terms.len();
+        let own: Vec<OwnParam> = (own.iter())
+            .map(|&o| match o {
+                0 => OwnParam::LongTime,
+                o if o <= m => OwnParam::Compliance(o - 1),
+                o => OwnParam::Tau(o - 1 - m),
+            })
+            .collect();
+        debug_assert!(own.iter().all(|o| match o {
+            OwnParam::Compliance(i) | OwnParam::Tau(i) => *i < m,
+            OwnParam::LongTime => true,
+        }));
+        let tau_column = (0..m)
+            .map(|i| own.iter().position(|&o| o == OwnParam::Tau(i)))
+            .collect();
+        let params = own.len() + extra;
         Self {
+            own,
+            tau_column,
             // A term far faster than the sampling has `a = e^{−T/τ}` = 0, where `−a·ln a`
             // is 0·∞: its limit, 0, is what `a·T/τ` gives.
             rates: (state.terms.iter())
@@ -108,7 +158,7 @@ impl MaterialSensitivity {
     /// where [`MaterialState::affine`] gives `y = α·u + β` for the next input: what the
     /// contact solve's `g_θ` needs. Into the caller's slice, as it is asked for every sample.
     pub fn affine(&self, state: &MaterialState, out: &mut [(f64, f64)]) {
-        let (m, params) = (self.rates.len(), self.params());
+        let params = self.params();
         let out = &mut out[..params];
         // Through the state and the last input, for every parameter: term by term over
         // contiguous rows (this runs every sample of a fit's tangent).
@@ -122,15 +172,21 @@ impl MaterialSensitivity {
             }
         }
         // And directly, for the material's own.
-        out[0].0 = state.j0;
-        for (i, (&(j, a, c), &x)) in state.terms.iter().zip(&state.x).enumerate() {
-            let (da, dc) = self.rates[i];
-            let compliance = &mut out[1 + i];
-            compliance.0 = -j * c;
-            compliance.1 += j * (c * state.prev_u - a * x);
-            let tau = &mut out[1 + m + i];
-            tau.0 = -j * dc;
-            tau.1 += j * (dc * state.prev_u - da * x);
+        for (slot, &own) in out.iter_mut().zip(&self.own) {
+            match own {
+                OwnParam::LongTime => slot.0 = state.j0,
+                OwnParam::Compliance(i) => {
+                    let (j, a, c) = state.terms[i];
+                    slot.0 = -j * c;
+                    slot.1 += j * (c * state.prev_u - a * state.x[i]);
+                }
+                OwnParam::Tau(i) => {
+                    let (j, _, _) = state.terms[i];
+                    let (da, dc) = self.rates[i];
+                    slot.0 = -j * dc;
+                    slot.1 += j * (dc * state.prev_u - da * state.x[i]);
+                }
+            }
         }
     }
 
@@ -138,7 +194,7 @@ impl MaterialSensitivity {
     /// per parameter); `state` is the material *before* its own [`MaterialState::commit`]
     /// with `u`.
     pub fn commit(&mut self, state: &MaterialState, u: f64, du: &[f64]) {
-        let (m, params) = (self.rates.len(), self.params());
+        let params = self.params();
         debug_assert_eq!(du.len(), params, "one input derivative per parameter");
         for (i, ((_, a, c), x)) in state.terms.iter().zip(&state.x).enumerate() {
             let (da, dc) = self.rates[i];
@@ -147,7 +203,9 @@ impl MaterialSensitivity {
                 *dxq = a * *dxq + c * (duq - du_prev);
             }
             // The term's own τ moves its rates too.
-            row[1 + m + i] += da * x + dc * (u - state.prev_u);
+            if let Some(q) = self.tau_column[i] {
+                row[q] += da * x + dc * (u - state.prev_u);
+            }
         }
         for (p, &d) in self.du_prev.iter_mut().zip(du) {
             *p = d;
@@ -279,5 +337,81 @@ mod tests {
             let off = (off / size).sqrt();
             assert!(off < 1e-6, "parameter {q}: {off:e}");
         }
+    }
+
+    /// A sensitivity carrying some of the material's parameters, in another order, gives
+    /// each of them the same derivatives to the bit as one carrying all (a Jacobian's
+    /// tangent split in two runs relies on it), and an extra parameter alike.
+    #[test]
+    fn a_few_parameters_carried_are_the_same_as_all() {
+        use crate::prony::PronyTerm;
+        let fs = 4000.0;
+        let m = PronySeries::new(
+            4e-6,
+            vec![
+                PronyTerm {
+                    j_per_pa: 1.5e-6,
+                    tau_s: 0.08,
+                },
+                PronyTerm {
+                    j_per_pa: 0.6e-6,
+                    tau_s: 5e-4,
+                },
+            ],
+        );
+        // Full order: ln J0, ln J1, ln J2, ln τ1, ln τ2; then one extra.
+        let few = [4, 1, 0];
+        let run = |own: Option<&[usize]>| {
+            let mut s = MaterialState::new(&m, fs);
+            let mut sens = match own {
+                Some(own) => MaterialSensitivity::carrying(&s, own, 1),
+                None => MaterialSensitivity::new(&s, 1),
+            };
+            let params = sens.params();
+            let mut moved = vec![(0.0, 0.0); params];
+            let mut out = Vec::new();
+            for k in 0..500 {
+                let u = 1.0 + (k as f64 * 0.05).sin();
+                // The extra parameter moves the input; the others' inputs move with their
+                // own output (as a contact's would), differently for each.
+                sens.affine(&s, &mut moved);
+                let du: Vec<f64> = (0..params)
+                    .map(|q| {
+                        if q + 1 == params {
+                            0.3
+                        } else {
+                            -0.1 * moved[q].1
+                        }
+                    })
+                    .collect();
+                sens.commit(&s, u, &du);
+                s.commit(u);
+                out.push(moved.clone());
+            }
+            out
+        };
+        let all = run(None);
+        let some = run(Some(&few));
+        for (k, (a, b)) in all.iter().zip(&some).enumerate() {
+            for (q, &full) in few.iter().enumerate() {
+                assert_eq!(
+                    b[q].0.to_bits(),
+                    a[full].0.to_bits(),
+                    "sample {k}, ∂α {full}"
+                );
+                assert_eq!(
+                    b[q].1.to_bits(),
+                    a[full].1.to_bits(),
+                    "sample {k}, ∂β {full}"
+                );
+            }
+            assert_eq!(b[3], a[5], "sample {k}, the extra");
+        }
+        // And they move: a test of zeros would pass whatever was carried.
+        assert!(some
+            .last()
+            .unwrap()
+            .iter()
+            .all(|&(a, b)| a != 0.0 || b != 0.0));
     }
 }

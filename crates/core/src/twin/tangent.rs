@@ -102,30 +102,50 @@ pub struct Tangent {
 
 impl Tangent {
     /// All derivatives zero, for a twin at rest whose material is `material`, whose detector
-    /// is `detector` (only its delay is read) and that runs at `fs_hz`; it carries the
-    /// material's parameters and `others` (none of the material's).
+    /// is `detector` (only its delay is read) and that runs at `fs_hz`. It carries the
+    /// parameters `carried` (the material's own first, in the order given, then the others
+    /// in theirs), or where `None` every material parameter and then `others`; `others` (none
+    /// of the material's) are the parameters the caller may ask of this twin, `carried` a
+    /// choice among them and the material's.
     ///
     /// The drive's parameters among `others` (`Drive(0)`, `Drive(1)`, … in order) go through
     /// copies of `actuator` (which must have no hysteresis: its response is then linear in
-    /// the drive).
+    /// the drive), carried or not: each takes the drive's derivative by its index.
     pub(super) fn new(
         material: &MaterialState,
         detector: &DetectorConfig,
         actuator: &ActuatorConfig,
         others: &[TangentParam],
+        carried: Option<&[TangentParam]>,
         fs_hz: f64,
     ) -> Self {
         let drive_params = (others.iter())
             .filter(|p| matches!(p, TangentParam::Drive(_)))
             .count();
         debug_assert!(drive_params == 0 || actuator.hysteresis.is_none());
-        let sens = MaterialSensitivity::new(material, others.len());
+        let terms = material.terms();
+        // Each carried material parameter's index in the material's full order.
+        let full_index = |p: TangentParam| match p {
+            TangentParam::LnLongTimeCompliance => Some(0),
+            TangentParam::LnTermCompliance(i) => Some(1 + i),
+            TangentParam::LnTermTau(i) => Some(1 + terms + i),
+            _ => None,
+        };
+        let all: Vec<TangentParam> = match carried {
+            Some(carried) => (carried.iter())
+                .filter(|&&p| full_index(p).is_some())
+                .chain(carried.iter().filter(|&&p| full_index(p).is_none()))
+                .copied()
+                .collect(),
+            None => std::iter::once(TangentParam::LnLongTimeCompliance)
+                .chain((0..terms).map(TangentParam::LnTermCompliance))
+                .chain((0..terms).map(TangentParam::LnTermTau))
+                .chain(others.iter().copied())
+                .collect(),
+        };
+        let own: Vec<usize> = all.iter().filter_map(|&p| full_index(p)).collect();
+        let sens = MaterialSensitivity::carrying(material, &own, all.len() - own.len());
         let params = sens.params();
-        let terms = (params - 1 - others.len()) / 2;
-        let mut all = vec![TangentParam::LnLongTimeCompliance];
-        all.extend((0..terms).map(TangentParam::LnTermCompliance));
-        all.extend((0..terms).map(TangentParam::LnTermTau));
-        all.extend_from_slice(others);
         let delay = DetectorConfig {
             delay_s: detector.delay_s,
             ..DetectorConfig::default()
