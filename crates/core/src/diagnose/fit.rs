@@ -1503,34 +1503,49 @@ pub(crate) mod tests {
     /// at the fit's θ, and a fan that runs the run ahead first, before the trial is judged
     /// (every trial's, the rejected too), leaves the fit and its count of simulations as
     /// they were without it.
+    /// The options of [`short_nominal_fit`]: six steps.
+    const SHORT_FIT: FitOptions = FitOptions {
+        max_iterations: 6,
+        max_step: 1.0,
+        stall: None,
+    };
+    type Counter = std::thread::LocalKey<std::cell::Cell<usize>>;
+
+    /// The nominal fit the tests of the tangent's runs make, from a gain 5 % off, under
+    /// `fan`: its start, the fit, its count of simulations, and what `counter` (a test-only
+    /// count) reached in it.
+    fn short_nominal_fit(
+        problem: &Problem,
+        th0: &[f64],
+        fan: &dyn Fan,
+        counter: &'static Counter,
+    ) -> (Vec<f64>, Fitted, usize, usize) {
+        let spec = ModelSpec::nominal(MATERIAL_TERMS);
+        let mut start = th0.to_vec();
+        start[0] += 0.05;
+        let n0 = problem.simulations();
+        counter.with(|c| c.set(0));
+        let f = fit_model(problem, &spec, &[start.clone()], SHORT_FIT, fan).expect("fit");
+        let n = problem.simulations() - n0;
+        (start, f, n, counter.with(|c| c.get()))
+    }
+
     #[test]
     fn a_tangent_run_ahead_is_the_jacobians_own() {
         let (problem, th0) = problem();
         let spec = ModelSpec::nominal(MATERIAL_TERMS);
-        let opts = FitOptions {
-            max_iterations: 6,
-            max_step: 1.0,
-            stall: None,
-        };
-        let mut start = th0.clone();
-        start[0] += 0.05;
         // The fit, its count of simulations, and how many of its Jacobians took a run ahead.
-        let counted = |fan: &dyn Fan| {
-            let n0 = problem.simulations();
-            AHEAD_TAKEN.with(|c| c.set(0));
-            let f = fit_model(&problem, &spec, &[start.clone()], opts, fan).expect("fit");
-            (f, problem.simulations() - n0, AHEAD_TAKEN.with(|c| c.get()))
-        };
+        let counted = |fan: &dyn Fan| short_nominal_fit(&problem, &th0, fan, &AHEAD_TAKEN);
         NO_RUN_AHEAD.with(|c| c.set(true));
-        let (plain, n_plain, taken_plain) = counted(&Serial);
+        let (start, plain, n_plain, taken_plain) = counted(&Serial);
         NO_RUN_AHEAD.with(|c| c.set(false));
-        let (a, na, taken) = counted(&Serial);
+        let (_, a, na, taken) = counted(&Serial);
         assert_eq!(taken_plain, 0);
         // Every Jacobian took its run ahead: the start's and one per iteration, each of
         // which this fit accepts (a Jacobian runs only at accepted points).
         assert_eq!(
             taken,
-            1 + opts.max_iterations,
+            1 + SHORT_FIT.max_iterations,
             "Jacobians that took a run ahead"
         );
         assert_ne!(a.theta, start, "the fit moved");
@@ -1548,7 +1563,7 @@ pub(crate) mod tests {
             None,
         );
         assert_eq!(a.jacobian, fresh.expect("a Jacobian").0);
-        let (b, nb, taken_reversed) = counted(&Reversed);
+        let (_, b, nb, taken_reversed) = counted(&Reversed);
         assert_eq!(taken_reversed, taken);
         assert_eq!(nb, na);
         assert_eq!(a.theta, b.theta);
@@ -1575,28 +1590,12 @@ pub(crate) mod tests {
     fn a_tangent_split_in_two_runs_is_the_whole_run() {
         let (problem, th0) = problem();
         let spec = ModelSpec::nominal(MATERIAL_TERMS);
-        let opts = FitOptions {
-            max_iterations: 6,
-            max_step: 1.0,
-            stall: None,
-        };
-        let mut start = th0.clone();
-        start[0] += 0.05;
-        let counted = |fan: &dyn Fan| {
-            let n0 = problem.simulations();
-            TANGENT_SPLITS.with(|c| c.set(0));
-            let f = fit_model(&problem, &spec, &[start.clone()], opts, fan).expect("fit");
-            (
-                f,
-                problem.simulations() - n0,
-                TANGENT_SPLITS.with(|c| c.get()),
-            )
-        };
-        let (whole, n_whole, splits_whole) = counted(&Serial);
-        let (split, n_split, splits) = counted(&ReversedWithIdle);
+        let counted = |fan: &dyn Fan| short_nominal_fit(&problem, &th0, fan, &TANGENT_SPLITS);
+        let (start, whole, n_whole, splits_whole) = counted(&Serial);
+        let (_, split, n_split, splits) = counted(&ReversedWithIdle);
         assert_eq!(splits_whole, 0);
         // Each accepted trial's run ahead and each rejected one's: at least one a step.
-        assert!(splits > opts.max_iterations, "{splits} runs split");
+        assert!(splits > SHORT_FIT.max_iterations, "{splits} runs split");
         assert_ne!(split.theta, start, "the fit moved");
         assert_eq!(split.theta, whole.theta);
         assert_eq!(split.jacobian, whole.jacobian);
