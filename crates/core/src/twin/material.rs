@@ -100,7 +100,7 @@ pub struct MaterialSensitivity {
 
 /// One of a material's own parameters, as a [`MaterialSensitivity`] column carries it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum OwnParam {
+pub enum OwnParam {
     /// `ln J0`.
     LongTime,
     /// Term `i`'s `ln J`.
@@ -112,24 +112,21 @@ enum OwnParam {
 impl MaterialSensitivity {
     /// All derivatives zero: a material at rest, as [`MaterialState::new`] leaves it.
     pub fn new(state: &MaterialState, extra: usize) -> Self {
-        let all: Vec<usize> = (0..1 + 2 * state.terms.len()).collect();
+        let m = state.terms.len();
+        let all: Vec<OwnParam> = std::iter::once(OwnParam::LongTime)
+            .chain((0..m).map(OwnParam::Compliance))
+            .chain((0..m).map(OwnParam::Tau))
+            .collect();
         Self::carrying(state, &all, extra)
     }
 
-    /// [`Self::new`] carrying only the material's own parameters `own` (indices in the full
-    /// order: 0 for `ln J0`, `1 + i` for term `i`'s `ln J`, `1 + m + i` for its `ln τ`), in
-    /// that order, then `extra` others.
-    pub fn carrying(state: &MaterialState, own: &[usize], extra: usize) -> Self {
+    /// [`Self::new`] carrying only the material's own parameters `own` (each term's index
+    /// below [`MaterialState::terms`]), in that order, then `extra` others.
+    pub fn carrying(state: &MaterialState, own: &[OwnParam], extra: usize) -> Self {
         let m = state.terms.len();
-        let own: Vec<OwnParam> = (own.iter())
-            .map(|&o| match o {
-                0 => OwnParam::LongTime,
-                o if o <= m => OwnParam::Compliance(o - 1),
-                o => OwnParam::Tau(o - 1 - m),
-            })
-            .collect();
-        debug_assert!(own.iter().all(|o| match o {
-            OwnParam::Compliance(i) | OwnParam::Tau(i) => *i < m,
+        let own = own.to_vec();
+        debug_assert!(own.iter().all(|o| match *o {
+            OwnParam::Compliance(i) | OwnParam::Tau(i) => i < m,
             OwnParam::LongTime => true,
         }));
         let tau_column = (0..m)
@@ -360,8 +357,13 @@ mod tests {
             ],
         );
         // Full order: ln J0, ln J1, ln J2, ln τ1, ln τ2; then one extra.
-        let few = [4, 1, 0];
-        let run = |own: Option<&[usize]>| {
+        let few = [
+            OwnParam::Tau(1),
+            OwnParam::Compliance(0),
+            OwnParam::LongTime,
+        ];
+        let full = [4, 1, 0];
+        let run = |own: Option<&[OwnParam]>| {
             let mut s = MaterialState::new(&m, fs);
             let mut sens = match own {
                 Some(own) => MaterialSensitivity::carrying(&s, own, 1),
@@ -393,7 +395,7 @@ mod tests {
         let all = run(None);
         let some = run(Some(&few));
         for (k, (a, b)) in all.iter().zip(&some).enumerate() {
-            for (q, &full) in few.iter().enumerate() {
+            for (q, &full) in full.iter().enumerate() {
                 assert_eq!(
                     b[q].0.to_bits(),
                     a[full].0.to_bits(),

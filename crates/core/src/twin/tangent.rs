@@ -36,7 +36,7 @@
 
 use super::actuator::{Actuator, ActuatorConfig};
 use super::detector::{Detector, DetectorConfig};
-use super::material::{MaterialSensitivity, MaterialState};
+use super::material::{MaterialSensitivity, MaterialState, OwnParam};
 
 /// One parameter a [`Tangent`] carries.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -124,17 +124,17 @@ impl Tangent {
             .count();
         debug_assert!(drive_params == 0 || actuator.hysteresis.is_none());
         let terms = material.terms();
-        // Each carried material parameter's index in the material's full order.
-        let full_index = |p: TangentParam| match p {
-            TangentParam::LnLongTimeCompliance => Some(0),
-            TangentParam::LnTermCompliance(i) => Some(1 + i),
-            TangentParam::LnTermTau(i) => Some(1 + terms + i),
+        // The material's own parameter a carried one is, if it is one.
+        let own = |p: TangentParam| match p {
+            TangentParam::LnLongTimeCompliance => Some(OwnParam::LongTime),
+            TangentParam::LnTermCompliance(i) => Some(OwnParam::Compliance(i)),
+            TangentParam::LnTermTau(i) => Some(OwnParam::Tau(i)),
             _ => None,
         };
         let all: Vec<TangentParam> = match carried {
             Some(carried) => (carried.iter())
-                .filter(|&&p| full_index(p).is_some())
-                .chain(carried.iter().filter(|&&p| full_index(p).is_none()))
+                .filter(|&&p| own(p).is_some())
+                .chain(carried.iter().filter(|&&p| own(p).is_none()))
                 .copied()
                 .collect(),
             None => std::iter::once(TangentParam::LnLongTimeCompliance)
@@ -143,8 +143,9 @@ impl Tangent {
                 .chain(others.iter().copied())
                 .collect(),
         };
-        let own: Vec<usize> = all.iter().filter_map(|&p| full_index(p)).collect();
-        let sens = MaterialSensitivity::carrying(material, &own, all.len() - own.len());
+        let material_params: Vec<OwnParam> = all.iter().filter_map(|&p| own(p)).collect();
+        let extra = all.len() - material_params.len();
+        let sens = MaterialSensitivity::carrying(material, &material_params, extra);
         let params = sens.params();
         let delay = DetectorConfig {
             delay_s: detector.delay_s,
