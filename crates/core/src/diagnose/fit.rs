@@ -130,14 +130,11 @@ fn jacobian_with(
     let mut jac = DMatrix::<f64>::zeros(r0.len(), which.len());
     let mut linear = DMatrix::<f64>::zeros(base.linear.len(), which.len());
     let tangent = if run_tangent {
-        let mut merged = Some(Vec::new());
+        let mut halves = Vec::with_capacity(runs.len());
         for outcome in outcomes.drain(..runs.len()) {
-            match (outcome?, merged.as_mut()) {
-                (Err(Some(columns)), Some(all)) => all.extend(columns),
-                _ => merged = None,
-            }
+            halves.push(outcome?.err().flatten());
         }
-        merged
+        joined(halves)
     } else {
         taken
     };
@@ -268,10 +265,9 @@ thread_local! {
 /// and carries its columns' derivatives only ([`crate::twin::Twin::tangent_carrying`]),
 /// each the same to the bit as in one run: the Jacobian does not depend on the split.
 /// Where every thread is at work (the candidates' refits side by side) the repeated
-/// simulation is only more work, so the run is not split there. On the concealed corpus's
-/// creep + nonlinear detector record (two cores, three runs each, 2026-12-05): 27.5 s
-/// before, 27.1 s with the tangent carrying only its columns, 25.4 s split; split on
-/// every fan, busy or not, the refits lost more than the nominal fits gained.
+/// simulation is only more work, so the run is not split there: split on every fan, busy
+/// or not, the refits lost more than the nominal fits gained (docs/diagnosis-speed.md has
+/// the times).
 fn tangent_runs(fan: &dyn Fan, params: &[usize]) -> Vec<Vec<usize>> {
     if fan.idle_threads() == 0 || params.len() < SPLIT_TANGENT_FROM {
         return vec![params.to_vec()];
@@ -280,6 +276,12 @@ fn tangent_runs(fan: &dyn Fan, params: &[usize]) -> Vec<Vec<usize>> {
     TANGENT_SPLITS.with(|c| c.set(c.get() + 1));
     let half = params.len().div_ceil(2);
     vec![params[..half].to_vec(), params[half..].to_vec()]
+}
+
+/// The columns of a tangent's runs ([`tangent_runs`]) in order, where every run gave its own.
+fn joined<T>(runs: impl IntoIterator<Item = Option<Vec<T>>>) -> Option<Vec<T>> {
+    let runs: Vec<Vec<T>> = runs.into_iter().collect::<Option<_>>()?;
+    Some(runs.into_iter().flatten().collect())
 }
 
 /// The fewest parameters a tangent run is split in two for ([`tangent_runs`]): below it the
@@ -434,13 +436,8 @@ fn fit_params_tied(
         });
         let mut jobs = jobs.into_iter();
         let (evaluated, _) = jobs.next()?;
-        // The halves' columns in order, where every half ran to its end.
         let columns = (!runs.is_empty())
-            .then(|| {
-                jobs.map(|(_, columns)| columns)
-                    .collect::<Option<Vec<_>>>()
-                    .map(|halves| halves.into_iter().flatten().collect::<Vec<_>>())
-            })
+            .then(|| joined(jobs.map(|(_, columns)| columns)))
             .flatten();
         let (e, r) = evaluated?;
         *ahead.borrow_mut() = columns.map(|columns| AheadTangent {
@@ -1498,11 +1495,6 @@ pub(crate) mod tests {
         assert!(before > 1.5 && after < 1.1, "χ²/sample {before} → {after}");
     }
 
-    /// The tangent run made ahead of a Jacobian (`fit_params_tied`) is the one the Jacobian
-    /// would have made: the fit's last Jacobian, taken from it, equals one computed afresh
-    /// at the fit's θ, and a fan that runs the run ahead first, before the trial is judged
-    /// (every trial's, the rejected too), leaves the fit and its count of simulations as
-    /// they were without it.
     /// The options of [`short_nominal_fit`]: six steps.
     const SHORT_FIT: FitOptions = FitOptions {
         max_iterations: 6,
@@ -1530,6 +1522,11 @@ pub(crate) mod tests {
         (start, f, n, counter.with(|c| c.get()))
     }
 
+    /// The tangent run made ahead of a Jacobian (`fit_params_tied`) is the one the Jacobian
+    /// would have made: the fit's last Jacobian, taken from it, equals one computed afresh
+    /// at the fit's θ, and a fan that runs the run ahead first, before the trial is judged
+    /// (every trial's, the rejected too), leaves the fit and its count of simulations as
+    /// they were without it.
     #[test]
     fn a_tangent_run_ahead_is_the_jacobians_own() {
         let (problem, th0) = problem();
