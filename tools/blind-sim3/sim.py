@@ -717,6 +717,12 @@ def main():
         for e in it["effects"]:
             p = effect_params(r, e, cfg)
             target = float(r.uniform(2.0, 5.0))
+            # Added by the project, not the simulator's author: B3_SIZE=LO,HI draws the
+            # target ratio from [LO, HI] instead (the same draw scaled), to ask how the
+            # diagnosis tells effects apart once they are clearly there. Unset: as written.
+            if os.environ.get("B3_SIZE"):
+                lo, hi = (float(x) for x in os.environ["B3_SIZE"].split(","))
+                target = lo + (target - 2.0) / 3.0 * (hi - lo)
             ratios[e] = size_effect(cfg, nom, e, p, target)
             p["target_ratio"] = target
             p["achieved_ratio_alone"] = ratios[e]
