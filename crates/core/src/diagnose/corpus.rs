@@ -1011,6 +1011,7 @@ fn mains_knob(freq_hz: f64) -> Knob {
                 amplitude_v: p,
                 second_harmonic_v: 0.0,
                 third_harmonic_v: 0.0,
+                fifth_harmonic_v: 0.0,
             });
             vec![
                 ("detector.mains.freq_hz".into(), freq_hz),

@@ -1134,6 +1134,7 @@ pub fn diagnose_observed(
         left_out,
         mains_hz: pick_mains(&y[..free_end.max(2)], fs),
         mains_ci95_hz: None,
+        mains_top_harmonic: model::MAINS_HARMONICS,
         floor_from_hz: 3.0 * fs / noise.samples.max(1) as f64,
         floor_rises_at_bottom: noise.rises_at_low_frequency(fs),
         fixed_columns: Default::default(),
@@ -4793,6 +4794,7 @@ mod tests {
             amplitude_v: line,
             second_harmonic_v: 0.0,
             third_harmonic_v: third,
+            fifth_harmonic_v: 0.0,
         })
     }
 
@@ -6387,6 +6389,36 @@ mod tests {
         );
     }
 
+    /// Mains pick-up with a fifth harmonic (a tenth of the line, 1.5 times the floor): named,
+    /// every harmonic up to the fifth fitted, the fifth recovered, and the fit at the floor.
+    /// With the third the highest, the floor whitened the fifth away and the fit stayed
+    /// above the floor.
+    #[test]
+    fn a_fifth_mains_harmonic_is_fitted() {
+        let mut twin = nominal_twin(12);
+        let sigma = twin.detector.white_noise_v;
+        let a5 = 1.5 * sigma;
+        twin.detector.mains = Some(Mains {
+            freq_hz: 50.0,
+            amplitude_v: 15.0 * sigma,
+            second_harmonic_v: 0.0,
+            third_harmonic_v: 5.0 * sigma,
+            fifth_harmonic_v: a5,
+        });
+        let d = diagnosed(&twin, 5000.0);
+        assert_eq!(d.named(), ["mains_interference"], "{:?}", d.effects[0]);
+        let p = |name: &str| {
+            let found = d.effects[0].params.iter().find(|p| p.name == name);
+            found.map(|p| p.value)
+        };
+        let f5 = p("amplitude_5th_harmonic_v").expect("the fifth harmonic fitted");
+        assert!(
+            (f5 / a5 - 1.0).abs() < 0.1,
+            "fifth harmonic {f5} V vs {a5} V"
+        );
+        assert!(d.against_floor.after_at_floor, "{:?}", d.after);
+    }
+
     /// Mains pick-up 0.03 Hz off the grid's 50 Hz (a grid wanders by that much) is read at its
     /// own frequency, which its interval holds and which the held 50 Hz lies outside, and
     /// the fit comes down to the floor. Held at 50 Hz, the after fit stayed at 1.215 per
@@ -6400,6 +6432,7 @@ mod tests {
             amplitude_v: 1.5 * sigma,
             second_harmonic_v: 0.0,
             third_harmonic_v: 0.6 * sigma,
+            fifth_harmonic_v: 0.0,
         });
         let d = diagnosed(&twin, 5000.0);
         assert_eq!(d.named(), ["mains_interference"], "{:?}", d.effects[0]);

@@ -169,7 +169,7 @@ impl Effect {
     }
 
     /// Names and units of the linear (closed-form) coefficients.
-    fn linear_names(self, spec: &ModelSpec, mains_hz: f64) -> Vec<(String, &'static str)> {
+    fn linear_names(self, spec: &ModelSpec, mains: MainsLines) -> Vec<(String, &'static str)> {
         match self {
             Effect::ThermalDrift => match spec.drift {
                 DriftForm::Deflection | DriftForm::SurfaceAndDeflection => {
@@ -184,9 +184,9 @@ impl Effect {
                     .map(|j| (format!("wander_{j}_nm"), "nm"))
                     .collect(),
             },
-            Effect::MainsInterference => (1..=spec.mains_harmonic_count())
+            Effect::MainsInterference => (1..=spec.mains_harmonic_count(mains))
                 .flat_map(|h| {
-                    let f = h as f64 * mains_hz;
+                    let f = h as f64 * mains.hz;
                     [
                         (format!("cos_{f:.0}hz_v"), "V"),
                         (format!("sin_{f:.0}hz_v"), "V"),
@@ -471,8 +471,24 @@ pub(crate) const SURFACE_DRIFT_SCALE_NM_PER_S: f64 = 1.0;
 pub const AT_NOTHING: f64 = 1e-12;
 
 /// Harmonics of the mains line that `mains_interference` in its harmonic form fits, the
-/// line itself counted as the first. The noise floor removes the same ones.
+/// line itself counted as the first, unless the record shows higher ones
+/// ([`MAINS_TOP_HARMONIC`]). The noise floor removes the same ones.
 pub(crate) const MAINS_HARMONICS: usize = 3;
+
+/// The highest mains harmonic looked for beyond [`MAINS_HARMONICS`]: the fifth and seventh
+/// are what switching supplies and rectifiers put on a grid after the third. Where the
+/// record's residual holds one of them (`super::mains::read`), the harmonic form fits every
+/// harmonic up to it, and the floor leaves it out where the lever is free
+/// (`super::noise::measure`).
+pub(crate) const MAINS_TOP_HARMONIC: usize = 7;
+
+/// The mains lines `mains_interference` fits: at `hz`, in the harmonic form up to the
+/// harmonic `top` (the line itself the first).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MainsLines {
+    pub hz: f64,
+    pub top: usize,
+}
 
 /// The regressors every model draws from, which no parameter moves: raw and whitened, and
 /// what [`Problem::evaluate`]'s normal equations need of them on the train samples, computed
@@ -1288,9 +1304,9 @@ impl ModelSpec {
 
     /// How many mains harmonics `mains_interference` has in this model, the line itself
     /// counted as the first: its columns, coefficient names and amplitudes all follow this.
-    pub fn mains_harmonic_count(&self) -> usize {
+    pub fn mains_harmonic_count(&self, mains: MainsLines) -> usize {
         if self.mains_harmonics {
-            MAINS_HARMONICS
+            mains.top
         } else {
             1
         }
@@ -1428,6 +1444,9 @@ pub struct Problem {
     /// The 95 % interval of `mains_hz`, Hz, where it was read from the record: it is then
     /// one more parameter of `mains_interference`. `None` at the grid's nominal frequency.
     pub mains_ci95_hz: Option<[f64; 2]>,
+    /// The highest harmonic `mains_interference`'s harmonic form fits: [`MAINS_HARMONICS`]
+    /// unless [`Problem::set_mains`] puts a higher one the record shows.
+    pub mains_top_harmonic: usize,
     /// Lowest frequency at which the noise floor was measured, Hz.
     pub floor_from_hz: f64,
     /// Whether that floor rises at its bottom as 1/f noise does
@@ -2232,7 +2251,7 @@ impl Problem {
         // the same detector reads it (over the wider range a hard sample deflects through),
         // and the same drag pushes the lever wherever the tip is off the surface.
         // Their columns are of the clean reading: all are taken before any is added.
-        let at = |e: Effect| idx_of(spec, e, self.mains_hz);
+        let at = |e: Effect| idx_of(spec, e, self.mains_lines());
         let mut terms: Vec<(f64, Vec<f64>)> = vec![];
         if spec.has(Effect::DetectorNonlinearity) {
             let cols = nonlinearity_columns(spec.nonlinearity, &deflection);
@@ -2268,7 +2287,7 @@ impl Problem {
                 (c, wc)
             };
             let mut columns = vec![col(&|_| 1.0), col(&|t| t), col(&|t| t * t)];
-            for h in 1..=MAINS_HARMONICS {
+            for h in 1..=self.mains_top_harmonic {
                 let w = 2.0 * std::f64::consts::PI * self.mains_hz * h as f64;
                 columns.push(col(&|t| (w * t).cos()));
                 columns.push(col(&|t| (w * t).sin()));
@@ -2476,7 +2495,7 @@ impl Problem {
                     }
                 },
                 Effect::MainsInterference => {
-                    for h in 1..=spec.mains_harmonic_count() {
+                    for h in 1..=spec.mains_harmonic_count(self.mains_lines()) {
                         cols.push(borrowed(FixedColumn::MainsCos(h)));
                         cols.push(borrowed(FixedColumn::MainsSin(h)));
                     }
@@ -2512,12 +2531,21 @@ impl Problem {
         self.fixed_columns = Default::default();
     }
 
-    /// Puts the mains frequency `mains_interference` fits at (its closed-form columns are
-    /// computed again on next use).
+    /// Puts the mains frequency `mains_interference` fits at, and the highest harmonic its
+    /// harmonic form fits (its closed-form columns are computed again on next use).
     pub fn set_mains(&mut self, mains: super::mains::MainsFrequency) {
         self.mains_hz = mains.hz;
         self.mains_ci95_hz = mains.ci95_hz;
+        self.mains_top_harmonic = mains.top_harmonic;
         self.fixed_columns = Default::default();
+    }
+
+    /// The mains lines `mains_interference` fits.
+    pub fn mains_lines(&self) -> MainsLines {
+        MainsLines {
+            hz: self.mains_hz,
+            top: self.mains_top_harmonic,
+        }
     }
 
     /// The record's length, s: its samples over the sampling rate.
@@ -2830,7 +2858,7 @@ impl Problem {
         let mut idx = 1;
         let wandering = effect == Effect::ThermalDrift && spec.drift == DriftForm::Wandering;
         for &e in &spec.effects {
-            let names = e.linear_names(spec, self.mains_hz);
+            let names = e.linear_names(spec, self.mains_lines());
             for (name, unit) in names {
                 // A wander's coefficients, one per knot, say little each: its size is below.
                 if e == effect && !wandering {
@@ -2842,7 +2870,7 @@ impl Problem {
             }
         }
         if wandering {
-            let i = idx_of(spec, effect, self.mains_hz);
+            let i = idx_of(spec, effect, self.mains_lines());
             let coefficients = linear.get(i..i + WANDER_KNOTS).unwrap_or(&[]);
             let (rms, peak_to_peak) = spread(&self.wander_curve(coefficients));
             let none = [f64::NAN, f64::NAN];
@@ -2852,8 +2880,8 @@ impl Problem {
             out.push(("knot_spacing_s".into(), "s", h, [h, h]));
         }
         if effect == Effect::MainsInterference {
-            let i = idx_of(spec, effect, self.mains_hz);
-            for h in 1..=spec.mains_harmonic_count() {
+            let i = idx_of(spec, effect, self.mains_lines());
+            for h in 1..=spec.mains_harmonic_count(self.mains_lines()) {
                 let (c, s) = (linear[i + 2 * h - 2], linear[i + 2 * h - 1]);
                 let name = match h {
                     1 => "amplitude_v".to_string(),
@@ -2878,7 +2906,7 @@ impl Problem {
         1 + spec
             .effects
             .iter()
-            .map(|e| e.linear_names(spec, self.mains_hz).len())
+            .map(|e| e.linear_names(spec, self.mains_lines()).len())
             .sum::<usize>()
     }
 }
@@ -2927,13 +2955,13 @@ fn nonlinearity_columns(form: NonlinearityForm, v: &[f64]) -> Vec<(i32, Vec<f64>
     cols
 }
 
-fn idx_of(spec: &ModelSpec, effect: Effect, mains_hz: f64) -> usize {
+fn idx_of(spec: &ModelSpec, effect: Effect, mains: MainsLines) -> usize {
     let mut idx = 1;
     for &e in &spec.effects {
         if e == effect {
             return idx;
         }
-        idx += e.linear_names(spec, mains_hz).len();
+        idx += e.linear_names(spec, mains).len();
     }
     idx
 }
@@ -2988,6 +3016,7 @@ pub(crate) fn test_problem(
         left_out: vec![],
         mains_hz: 50.0,
         mains_ci95_hz: None,
+        mains_top_harmonic: MAINS_HARMONICS,
         floor_from_hz: 1.0,
         floor_rises_at_bottom: false,
         fixed_columns: Default::default(),

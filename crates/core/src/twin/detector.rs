@@ -51,6 +51,10 @@ pub struct Mains {
     /// its odd harmonics, the third the strongest.
     #[serde(default)]
     pub third_harmonic_v: f64,
+    /// Amplitude of the fifth harmonic, V: the next odd one, which switching supplies and
+    /// rectifiers put on a grid beside the third.
+    #[serde(default)]
+    pub fifth_harmonic_v: f64,
 }
 
 /// The lowest corner of the 1/f noise's octaves, Hz. Ten octaves below fs/4 were simulated
@@ -178,7 +182,8 @@ impl Detector {
             let phase = 2.0 * std::f64::consts::PI * m.freq_hz * t;
             out += m.amplitude_v * phase.sin()
                 + m.second_harmonic_v * (2.0 * phase).sin()
-                + m.third_harmonic_v * (3.0 * phase).sin();
+                + m.third_harmonic_v * (3.0 * phase).sin()
+                + m.fifth_harmonic_v * (5.0 * phase).sin();
         }
         if self.cfg.lsb_v > 0.0 {
             out = (out / self.cfg.lsb_v).round() * self.cfg.lsb_v;
