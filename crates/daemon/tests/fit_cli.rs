@@ -616,6 +616,8 @@ fn real_jpk_diagnose_json_keeps_the_documented_keys() {
     assert!(blind.is_empty(), "{blind:?}");
     for e in effects {
         finite(e, "evidence");
+        // The base is the sensor itself: no lag of its to hold the nominal twin at.
+        assert_eq!(e["evidence_against_sensor_lag"], false, "{e}");
         let refused = e
             .get("refused")
             .expect("every effect says whether it was refused");

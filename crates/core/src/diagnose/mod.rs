@@ -158,6 +158,15 @@ pub struct EffectReport {
     /// pair, for the second (its drop over the nominal model alone would count twice the
     /// residual the two share).
     pub given: Option<&'static str>,
+    /// Whether `evidence` is measured against the nominal twin refitted with its actuator's
+    /// lag held at the height sensor's reading ([`SensorLagReading`]), not against the free
+    /// nominal fit the report's `before` is: where the sensor refutes the free fit's lag and
+    /// the held one reads both channels better, a candidate that takes the sensor's lag (a
+    /// channel delay) is weighed like against like. The deflection alone barely tells a
+    /// delay from the lag the free fit took, so such a candidate may be named with a
+    /// held-out NRMSE no better than `before`'s: the evidence is the lag the two channels
+    /// disagree on.
+    pub against_sensor_lag: bool,
     /// Drop of the train χ² and the BIC penalty it had to beat (a screened-only candidate:
     /// the one its screening drop did not beat, so it was not refitted).
     pub train_drop: f64,
@@ -2218,6 +2227,7 @@ pub fn diagnose_observed(
             }
         }
         let f = at_nothing.as_ref().unwrap_or(refit);
+        let against_sensor_lag = !std::ptr::eq(nominal_for(f), &nom);
         if j.wins {
             // Ranked by the held-out drop less a BIC-like price per parameter: look-alikes
             // explain the same residual within a few χ² units, and then the simpler physics
@@ -2243,6 +2253,7 @@ pub fn diagnose_observed(
             train_drop: j.train_drop,
             bic_penalty: j.penalty,
             given: None,
+            against_sensor_lag,
             refitted: true,
             params: params_of(&problem, f, *e),
             held_out_nrmse: Some(held_nrmse(&problem, f)),
@@ -2267,6 +2278,7 @@ pub fn diagnose_observed(
         train_drop: drop,
         bic_penalty: penalty_of(e),
         given: None,
+        against_sensor_lag: false,
         refitted: false,
         params: vec![],
         held_out_nrmse: None,
@@ -2531,6 +2543,7 @@ pub fn diagnose_observed(
                             // The first alone stands, as the better fit of its own model.
                             let j0 = judge(nominal_for(&f1), &f1);
                             if let Some(r) = reports.iter_mut().find(|r| r.id == a.id()) {
+                                r.against_sensor_lag = !std::ptr::eq(nominal_for(&f1), &nom);
                                 r.evidence = j0.held_drop;
                                 r.train_drop = j0.train_drop;
                                 r.held_out_nrmse = Some(held_nrmse(&problem, &f1));
@@ -2552,6 +2565,7 @@ pub fn diagnose_observed(
                     r.train_drop = j.train_drop;
                     r.bic_penalty = j.penalty;
                     r.given = Some(lead.id());
+                    r.against_sensor_lag = false;
                     r.at_nothing = false;
                     r.held_out_nrmse = Some(held_nrmse(&problem, &fp));
                     r.sensor_evidence = j.sensor.map(|s| s.1);
@@ -2600,6 +2614,7 @@ pub fn diagnose_observed(
             train_drop: j.train_drop,
             bic_penalty: j.penalty,
             given: chosen_effects.last().map(|e| e.id()),
+            against_sensor_lag: false,
             refitted: true,
             params: vec![
                 Param {
@@ -4985,6 +5000,10 @@ mod tests {
         );
         let top = &seen.effects[0];
         assert!(top.significant && top.id == "channel_delay", "{top:?}");
+        // Earned against the free nominal fit, the sensor's part of it its refutation of
+        // that fit's lag (the nominal twin held at the sensor's lag reads the deflection
+        // too badly to be the base).
+        assert!(!top.against_sensor_lag, "{top:?}");
         assert!(top.sensor_evidence.unwrap() > 100.0, "{top:?}");
         let delay = top.params.iter().find(|p| p.name == "delay_s").unwrap();
         assert!(
