@@ -52,18 +52,22 @@ pub struct MainsFrequency {
 /// searched within [`MAINS_WANDER`] of `nominal_hz` (50 or 60 Hz), and the highest harmonic
 /// it shows.
 ///
+/// Why the highest harmonic: an independent simulator put a fifth harmonic of a tenth of the
+/// line on its pick-up. A model that stopped at the third left it to the floor, whose AR
+/// filter, measured where the lever was free, had learned it as noise and whitened it away
+/// with much of the line's neighbourhood; the pick-up, eleven times the floor, then fitted
+/// worse on held-out data than no model at all, and the diagnosis called the record
+/// unexplained.
+///
 /// A harmonic above [`MAINS_HARMONICS`] counts where its own lines take up more than
 /// [`LINE_MIN_GAIN`] and their two parameters' BIC price, in units of what the residual
 /// holds per sample beside the lower lines (at least the floor's): a nominal twin that
 /// misfits by structure leaves χ² at every frequency, and two columns anywhere take up a
-/// share of it. (Judged against the floor alone, two adhesion records of another simulator,
+/// share of it. (Judged against the floor alone, two adhesion records of that simulator,
 /// nine times the floor per sample, were given a fourth and fifth harmonic they did not
-/// have.) An independent simulator put a
-/// fifth harmonic of a tenth of the line on its pick-up: a model that stopped at the third
-/// left it to the floor, whose AR filter, measured where the lever was free, had learned it
-/// as noise and whitened it away with much of the line's neighbourhood; the pick-up, eleven
-/// times the floor, then fitted worse on held-out data than no model at all, and the
-/// diagnosis called the record unexplained.
+/// have.) A misfit at a multiple of the mains frequency still counts: another simulator's
+/// pick-up with harmonics to the third, beside a drive line at 50 Hz whose harmonics the
+/// contact makes, is carried to the seventh (named and fitted as well as before).
 pub fn read(problem: &Problem, residual_v: &[f64], nominal_hz: f64) -> MainsFrequency {
     let (hz, ci95_hz) = read_frequency(problem, residual_v, nominal_hz);
     let mut top_harmonic = MAINS_HARMONICS;
