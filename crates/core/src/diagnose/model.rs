@@ -224,9 +224,11 @@ pub struct ModelSpec {
     pub tip: TipForm,
     /// Which terms `detector_nonlinearity` has.
     pub nonlinearity: NonlinearityForm,
-    /// `mains_interference` with its second and third harmonics as well (four more
-    /// closed-form coefficients): a supply distorted by rectifying loads, or a transformer
-    /// near saturation, radiates its harmonics beside the line, the third the strongest.
+    /// `mains_interference` with its harmonics as well, up to the record's highest
+    /// (`Problem::mains_top_harmonic`: the third, two closed-form coefficients each beyond
+    /// the line's, unless the record shows a higher one): a supply distorted by rectifying
+    /// loads, or a transformer near saturation, radiates its harmonics beside the line, the
+    /// third the strongest.
     pub mains_harmonics: bool,
     /// Which kind of mode `instrument_resonance` is.
     pub resonance: ResonanceForm,
