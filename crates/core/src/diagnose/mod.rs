@@ -5023,6 +5023,30 @@ mod tests {
         );
     }
 
+    /// A delay of a tenth of a sample behind a stage that lags half a sample, read by a
+    /// quiet height sensor (0.005 nm): the nominal twin held at the sensor's lag reads the
+    /// two channels better than the free fit, so the delay is weighed against it, and the
+    /// report says so (`against_sensor_lag`). The delay is named, its interval about the
+    /// truth.
+    #[test]
+    fn a_delay_weighed_against_the_nominal_held_at_the_sensors_lag_says_so() {
+        let fs = SENSED_FS_HZ;
+        let (truth_s, stage_lag_s, q) = (0.1 / fs, 0.5 / fs, 0.5);
+        let mut twin = nominal_twin(22);
+        twin.detector.delay_s = truth_s;
+        let (drive_v, stage_v) = through_lagging_stage(stage_lag_s, q);
+        let rec = sensed(&twin, &stage_v, &drive_v, Some(0.005));
+        let seen = diagnose(&rec, &corpus_options()).unwrap();
+        assert_eq!(seen.named(), ["channel_delay"], "{:?}", seen.effects[0]);
+        let top = &seen.effects[0];
+        assert!(top.against_sensor_lag, "{top:?}");
+        let delay = top.params.iter().find(|p| p.name == "delay_s").unwrap();
+        assert!(
+            delay.ci95[0] < truth_s && truth_s < delay.ci95[1],
+            "{delay:?} vs {truth_s} s"
+        );
+    }
+
     /// A drag on the lever behind a stage that lags 0.4 samples: the drag's force leads the
     /// motion, and the nominal twin cancels the stage's lag with it, its actuator ideal. The
     /// height sensor reads the stage lagging by more (within 10 % of its truth), which the
