@@ -69,57 +69,74 @@ pub struct MainsFrequency {
 /// pick-up with harmonics to the third, beside a drive line at 50 Hz whose harmonics the
 /// contact makes, is carried to the seventh (named and fitted as well as before).
 pub fn read(problem: &Problem, residual_v: &[f64], nominal_hz: f64) -> MainsFrequency {
-    let (hz, ci95_hz) = read_frequency(problem, residual_v, nominal_hz);
-    let mut top_harmonic = MAINS_HARMONICS;
-    if problem.train.len() >= 100 && hz.is_finite() && hz > 0.0 {
-        let white_residual = problem.whiten(residual_v);
-        let white_offset = problem.whiten(&vec![1.0; problem.t_s.len()]);
-        let n_tr = problem.train.len() as f64;
-        let price = (LINE_MIN_GAIN).max(2.0 * n_tr.ln());
-        let lower: Vec<usize> = (1..=MAINS_HARMONICS)
-            .filter(|&h| (h as f64) * hz < problem.fs_hz / 2.0)
-            .collect();
-        let chi2: f64 = (problem.train.iter())
-            .map(|&i| white_residual[i] * white_residual[i])
-            .sum::<f64>()
-            / (problem.sigma_w_v * problem.sigma_w_v);
-        let beside_lower = chi2 - lines_gain(problem, &white_residual, &white_offset, hz, &lower);
-        let per_sample = (beside_lower / n_tr).max(1.0);
-        for h in MAINS_HARMONICS + 1..=MAINS_TOP_HARMONIC {
-            if h as f64 * hz >= problem.fs_hz / 2.0 {
-                break;
-            }
-            let gain = lines_gain(problem, &white_residual, &white_offset, hz, &[h]);
-            if gain / per_sample > price {
-                top_harmonic = h;
-            }
-        }
+    let at_nominal = MainsFrequency {
+        hz: nominal_hz,
+        ci95_hz: None,
+        top_harmonic: MAINS_HARMONICS,
+    };
+    if problem.train.len() < 100
+        || problem.record_s() <= 0.0
+        || nominal_hz.is_nan()
+        || nominal_hz <= 0.0
+    {
+        return at_nominal;
     }
+    let white = Whitened {
+        problem,
+        residual: problem.whiten(residual_v),
+        // The offset's whitened column, the same at every frequency tried.
+        offset: problem.whiten(&vec![1.0; problem.t_s.len()]),
+    };
+    let (hz, ci95_hz) = read_frequency(&white, nominal_hz);
     MainsFrequency {
         hz,
         ci95_hz,
-        top_harmonic,
+        top_harmonic: top_harmonic(&white, hz),
     }
 }
 
+/// A residual and the offset's column, whitened once for every line tried.
+struct Whitened<'a> {
+    problem: &'a Problem,
+    residual: Vec<f64>,
+    offset: Vec<f64>,
+}
+
+impl Whitened<'_> {
+    /// The train χ² the mains `harmonics` at `f_hz` take up ([`lines_gain`]).
+    fn gain(&self, f_hz: f64, harmonics: &[usize]) -> f64 {
+        lines_gain(self.problem, &self.residual, &self.offset, f_hz, harmonics)
+    }
+}
+
+/// The highest harmonic of the mains at `hz` that the residual shows ([`read`]).
+fn top_harmonic(white: &Whitened, hz: f64) -> usize {
+    let problem = white.problem;
+    let n_tr = problem.train.len() as f64;
+    let price = (LINE_MIN_GAIN).max(2.0 * n_tr.ln());
+    let below_nyquist = |h: usize| (h as f64) * hz < problem.fs_hz / 2.0;
+    let lower: Vec<usize> = (1..=MAINS_HARMONICS)
+        .filter(|&h| below_nyquist(h))
+        .collect();
+    let chi2: f64 = (problem.train.iter())
+        .map(|&i| white.residual[i] * white.residual[i])
+        .sum::<f64>()
+        / (problem.sigma_w_v * problem.sigma_w_v);
+    let per_sample = ((chi2 - white.gain(hz, &lower)) / n_tr).max(1.0);
+    (MAINS_HARMONICS + 1..=MAINS_TOP_HARMONIC)
+        .take_while(|&h| below_nyquist(h))
+        .filter(|&h| white.gain(hz, &[h]) / per_sample > price)
+        .last()
+        .unwrap_or(MAINS_HARMONICS)
+}
+
 /// [`read`]'s frequency and its interval (`None` at the grid's nominal frequency).
-fn read_frequency(
-    problem: &Problem,
-    residual_v: &[f64],
-    nominal_hz: f64,
-) -> (f64, Option<[f64; 2]>) {
+fn read_frequency(white: &Whitened, nominal_hz: f64) -> (f64, Option<[f64; 2]>) {
+    let problem = white.problem;
     let at_nominal = (nominal_hz, None);
     let n_tr = problem.train.len() as f64;
     let record_s = problem.record_s();
-    if problem.train.len() < 100 || record_s <= 0.0 || nominal_hz.is_nan() || nominal_hz <= 0.0 {
-        return at_nominal;
-    }
-    let white_residual = problem.whiten(residual_v);
-    // The offset's whitened column, the same at every frequency tried.
-    let white_offset = problem.whiten(&vec![1.0; problem.t_s.len()]);
-    let lines_gain = |f_hz: f64, harmonics: &[usize]| {
-        lines_gain(problem, &white_residual, &white_offset, f_hz, harmonics)
-    };
+    let lines_gain = |f_hz: f64, harmonics: &[usize]| white.gain(f_hz, harmonics);
     let below_nyquist: Vec<usize> = (1..=MAINS_HARMONICS)
         .filter(|&h| (h as f64) * nominal_hz * (1.0 + MAINS_WANDER) < problem.fs_hz / 2.0)
         .collect();
