@@ -4946,6 +4946,20 @@ mod tests {
         );
     }
 
+    /// The lag of the stage in [`delayed_behind_a_lagging_stage`], samples (its damping Q 0.5).
+    const STAGE_LAG_SAMPLES: f64 = 0.5;
+
+    /// The twin of seed 22 with its deflection channel `delay_samples` behind a stage that
+    /// lags [`STAGE_LAG_SAMPLES`], recorded as [`sensed`] (with a height sensor of
+    /// `sensor_nm` rms, if any).
+    fn delayed_behind_a_lagging_stage(delay_samples: f64, sensor_nm: Option<f64>) -> Recording {
+        let fs = SENSED_FS_HZ;
+        let mut twin = nominal_twin(22);
+        twin.detector.delay_s = delay_samples / fs;
+        let (drive_v, stage_v) = through_lagging_stage(STAGE_LAG_SAMPLES / fs, 0.5);
+        sensed(&twin, &stage_v, &drive_v, sensor_nm)
+    }
+
     /// A delay of a fifth of a sample in the deflection's channel behind a stage that lags
     /// half a sample itself: the nominal actuator's lag takes the delay up, and the
     /// deflection alone names nothing, and says so as a blind spot bounded by that lag. The
@@ -4954,12 +4968,9 @@ mod tests {
     #[test]
     fn a_height_sensor_names_a_delay_the_lag_took_up() {
         let fs = SENSED_FS_HZ;
-        let (truth_s, stage_lag_s, q) = (0.2 / fs, 0.5 / fs, 0.5);
-        let mut twin = nominal_twin(22);
-        twin.detector.delay_s = truth_s;
-        let (drive_v, stage_v) = through_lagging_stage(stage_lag_s, q);
+        let (truth_s, stage_lag_s) = (0.2 / fs, STAGE_LAG_SAMPLES / fs);
         let opts = corpus_options();
-        let alone = diagnose(&sensed(&twin, &stage_v, &drive_v, None), &opts).unwrap();
+        let alone = diagnose(&delayed_behind_a_lagging_stage(0.2, None), &opts).unwrap();
         assert_eq!(alone.verdict, Verdict::None, "{:?}", alone.effects[0]);
         let lag = alone.before.actuator.lag_s;
         let both = truth_s + stage_lag_s;
@@ -4983,7 +4994,7 @@ mod tests {
             "{spot:?}"
         );
         assert!(alone.sensor_lag.is_none());
-        let seen = diagnose(&sensed(&twin, &stage_v, &drive_v, Some(0.05)), &opts).unwrap();
+        let seen = diagnose(&delayed_behind_a_lagging_stage(0.2, Some(0.05)), &opts).unwrap();
         assert!(seen.blind_spots.is_empty(), "{:?}", seen.blind_spots);
         assert!(seen.sensor_lead.is_none(), "{:?}", seen.sensor_lead);
         // The sensor reads the stage's own lag, and the nominal twin held there misfits the
@@ -5030,12 +5041,8 @@ mod tests {
     /// truth.
     #[test]
     fn a_delay_weighed_against_the_nominal_held_at_the_sensors_lag_says_so() {
-        let fs = SENSED_FS_HZ;
-        let (truth_s, stage_lag_s, q) = (0.1 / fs, 0.5 / fs, 0.5);
-        let mut twin = nominal_twin(22);
-        twin.detector.delay_s = truth_s;
-        let (drive_v, stage_v) = through_lagging_stage(stage_lag_s, q);
-        let rec = sensed(&twin, &stage_v, &drive_v, Some(0.005));
+        let truth_s = 0.1 / SENSED_FS_HZ;
+        let rec = delayed_behind_a_lagging_stage(0.1, Some(0.005));
         let seen = diagnose(&rec, &corpus_options()).unwrap();
         assert_eq!(seen.named(), ["channel_delay"], "{:?}", seen.effects[0]);
         let top = &seen.effects[0];

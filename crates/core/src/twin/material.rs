@@ -109,15 +109,21 @@ pub enum OwnParam {
     Tau(usize),
 }
 
+impl OwnParam {
+    /// Every parameter of a material of `terms` Prony terms, in the order
+    /// [`MaterialSensitivity::new`] carries them: `ln J0`, each term's `ln J`, each `ln τ`.
+    pub fn all(terms: usize) -> Vec<OwnParam> {
+        std::iter::once(OwnParam::LongTime)
+            .chain((0..terms).map(OwnParam::Compliance))
+            .chain((0..terms).map(OwnParam::Tau))
+            .collect()
+    }
+}
+
 impl MaterialSensitivity {
     /// All derivatives zero: a material at rest, as [`MaterialState::new`] leaves it.
     pub fn new(state: &MaterialState, extra: usize) -> Self {
-        let m = state.terms.len();
-        let all: Vec<OwnParam> = std::iter::once(OwnParam::LongTime)
-            .chain((0..m).map(OwnParam::Compliance))
-            .chain((0..m).map(OwnParam::Tau))
-            .collect();
-        Self::carrying(state, &all, extra)
+        Self::carrying(state, &OwnParam::all(state.terms.len()), extra)
     }
 
     /// [`Self::new`] carrying only the material's own parameters `own` (each term's index
@@ -356,13 +362,18 @@ mod tests {
                 },
             ],
         );
-        // Full order: ln J0, ln J1, ln J2, ln τ1, ln τ2; then one extra.
+        // Carried in another order than the full one (ln J0, ln J1, ln J2, ln τ1, ln τ2);
+        // then one extra.
         let few = [
             OwnParam::Tau(1),
             OwnParam::Compliance(0),
             OwnParam::LongTime,
         ];
-        let full = [4, 1, 0];
+        let order = OwnParam::all(2);
+        let full: Vec<usize> = (few.iter())
+            .map(|o| order.iter().position(|a| a == o).unwrap())
+            .collect();
+        assert_eq!(full, [4, 1, 0]);
         let run = |own: Option<&[OwnParam]>| {
             let mut s = MaterialState::new(&m, fs);
             let mut sens = match own {
@@ -407,7 +418,7 @@ mod tests {
                     "sample {k}, ∂β {full}"
                 );
             }
-            assert_eq!(b[3], a[5], "sample {k}, the extra");
+            assert_eq!(b[few.len()], a[order.len()], "sample {k}, the extra");
         }
         // And they move: a test of zeros would pass whatever was carried.
         assert!(some
