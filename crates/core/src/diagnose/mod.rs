@@ -2097,6 +2097,9 @@ pub fn diagnose_observed(
             None => &nom,
         }
     };
+    // Whether a candidate is weighed against the nominal twin held at the sensor's lag
+    // (`EffectReport::against_sensor_lag`).
+    let against_sensor_lag = |cand: &Fitted| !std::ptr::eq(nominal_for(cand), &nom);
     let judge = |base: &Fitted, cand: &Fitted| -> Judgement {
         let k = (model::n_params(&problem, &cand.spec) as f64
             - model::n_params(&problem, &base.spec) as f64)
@@ -2227,7 +2230,6 @@ pub fn diagnose_observed(
             }
         }
         let f = at_nothing.as_ref().unwrap_or(refit);
-        let against_sensor_lag = !std::ptr::eq(nominal_for(f), &nom);
         if j.wins {
             // Ranked by the held-out drop less a BIC-like price per parameter: look-alikes
             // explain the same residual within a few χ² units, and then the simpler physics
@@ -2253,7 +2255,7 @@ pub fn diagnose_observed(
             train_drop: j.train_drop,
             bic_penalty: j.penalty,
             given: None,
-            against_sensor_lag,
+            against_sensor_lag: against_sensor_lag(f),
             refitted: true,
             params: params_of(&problem, f, *e),
             held_out_nrmse: Some(held_nrmse(&problem, f)),
@@ -2543,7 +2545,7 @@ pub fn diagnose_observed(
                             // The first alone stands, as the better fit of its own model.
                             let j0 = judge(nominal_for(&f1), &f1);
                             if let Some(r) = reports.iter_mut().find(|r| r.id == a.id()) {
-                                r.against_sensor_lag = !std::ptr::eq(nominal_for(&f1), &nom);
+                                r.against_sensor_lag = against_sensor_lag(&f1);
                                 r.evidence = j0.held_drop;
                                 r.train_drop = j0.train_drop;
                                 r.held_out_nrmse = Some(held_nrmse(&problem, &f1));

@@ -475,14 +475,12 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64, reader_warnings: &[Stri
                 "    rung by the surroundings, not by the drive (the room, the floor, a pump): a mode driven by white forcing while the lever touches the sample, which no twin driven by the recorded drive can follow; modelled by its statistics, and scored by its one-step prediction from the residual's own past (the after fit below is that prediction's)"
             );
         }
-        if e.against_sensor_lag {
-            if let Some(l) = &d.sensor_lag {
-                println!(
-                    "    measured against the nominal twin held at the height sensor's lag ({:.2} µs), which reads the two channels better than the free fit's {:.2} µs: a delay and the lag it stands in for fit the deflection alike, so the fit below may improve little; the evidence is the lag the two channels disagree on",
-                    l.lag_s * 1e6,
-                    l.deflection_lag_s * 1e6
-                );
-            }
+        if let (true, Some(l)) = (e.against_sensor_lag, &d.sensor_lag) {
+            println!(
+                "    measured against the nominal twin held at the height sensor's lag ({:.2} µs), which reads the two channels better than the free fit's {:.2} µs: a delay and the lag it stands in for fit the deflection alike, so the fit below may improve little; the evidence is the lag the two channels disagree on",
+                l.lag_s * 1e6,
+                l.deflection_lag_s * 1e6
+            );
         }
         if let (Some(s), Some(sigma)) = (e.sensor_evidence, d.sensor_sigma_nm) {
             println!(
