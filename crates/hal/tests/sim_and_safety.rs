@@ -19,6 +19,7 @@ fn twin() -> TwinConfig {
             modes: vec![],
             hysteresis: None,
             creep: None,
+            play: None,
         },
         cantilever: CantileverConfig {
             spring_constant_n_per_m: 0.065,

@@ -296,6 +296,7 @@ fn design_twin() -> TwinConfig {
             modes: vec![],
             hysteresis: None,
             creep: None,
+            play: None,
         },
         cantilever: CantileverConfig {
             spring_constant_n_per_m: 0.1,

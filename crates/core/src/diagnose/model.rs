@@ -1724,6 +1724,7 @@ impl Problem {
             modes: vec![],
             hysteresis: None,
             creep: None,
+            play: None,
         };
         if let (Some(a), Some(b), Some(g)) = (
             p(Effect::PiezoHysteresis, 0),

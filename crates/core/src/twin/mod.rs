@@ -311,6 +311,20 @@ impl TwinConfig {
                 format!("{prefix}.{k}")
             }
         };
+        if let Some(h) = self.actuator.play {
+            if !(h.amplitude.is_finite() && (0.0..=1.0).contains(&h.amplitude)) {
+                issues.push(ConfigIssue {
+                    path: p("actuator.play.amplitude"),
+                    message: format!("must be between 0 and 1 (got {})", h.amplitude),
+                });
+            }
+            if !h.shape.is_finite() {
+                issues.push(ConfigIssue {
+                    path: p("actuator.play.shape"),
+                    message: format!("must be a finite number (got {})", h.shape),
+                });
+            }
+        }
         let mut positive = |path: String, v: f64| {
             if !(v.is_finite() && v > 0.0) {
                 issues.push(ConfigIssue {
@@ -326,6 +340,9 @@ impl TwinConfig {
         }
         if let Some(c) = self.actuator.creep {
             positive(p("actuator.creep.tau_s"), c.tau_s);
+        }
+        if let Some(h) = self.actuator.play {
+            positive(p("actuator.play.radius_v"), h.radius_v);
         }
         positive(
             p("cantilever.spring_constant_n_per_m"),
@@ -740,7 +757,8 @@ impl Twin {
         if !carried.is_none_or(|c| c.iter().all(askable)) {
             return None;
         }
-        if !first.is_empty() && self.cfg.actuator.hysteresis.is_some() {
+        let hysteretic = self.cfg.actuator.hysteresis.is_some() || self.cfg.actuator.play.is_some();
+        if !first.is_empty() && hysteretic {
             return None;
         }
         let s = &self.cfg.sample;

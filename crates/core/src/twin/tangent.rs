@@ -122,7 +122,9 @@ impl Tangent {
         let drive_params = (others.iter())
             .filter(|p| matches!(p, TangentParam::Drive(_)))
             .count();
-        debug_assert!(drive_params == 0 || actuator.hysteresis.is_none());
+        debug_assert!(
+            drive_params == 0 || (actuator.hysteresis.is_none() && actuator.play.is_none())
+        );
         let terms = material.terms();
         // The material's own parameter a carried one is, if it is one.
         let own = |p: TangentParam| match p {

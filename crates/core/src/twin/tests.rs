@@ -15,6 +15,7 @@ fn base_config() -> TwinConfig {
             modes: vec![],
             hysteresis: None,
             creep: None,
+            play: None,
         },
         cantilever: CantileverConfig {
             spring_constant_n_per_m: 0.065,
@@ -341,6 +342,60 @@ fn an_absurd_detector_delay_is_an_error() {
         assert!(
             issues.iter().any(|i| i.path == "twin.detector.delay_s"),
             "{bad}: {issues:?}"
+        );
+    }
+}
+
+/// Play operators with an amplitude outside [0, 1], a radius that is not positive or a
+/// shape that is not finite: each an issue at its own key; a sound set, none.
+#[test]
+fn absurd_play_operators_are_errors_at_their_keys() {
+    use super::actuator::PlayHysteresis;
+    let mut cfg = base_config();
+    let sound = PlayHysteresis {
+        amplitude: 0.05,
+        radius_v: 1.0,
+        shape: 0.0,
+    };
+    cfg.actuator.play = Some(sound);
+    assert!(cfg.validate("").is_empty());
+    let bad = [
+        (
+            "amplitude",
+            PlayHysteresis {
+                amplitude: 1.5,
+                ..sound
+            },
+        ),
+        (
+            "amplitude",
+            PlayHysteresis {
+                amplitude: f64::NAN,
+                ..sound
+            },
+        ),
+        (
+            "radius_v",
+            PlayHysteresis {
+                radius_v: -1.0,
+                ..sound
+            },
+        ),
+        (
+            "shape",
+            PlayHysteresis {
+                shape: f64::INFINITY,
+                ..sound
+            },
+        ),
+    ];
+    for (key, play) in bad {
+        cfg.actuator.play = Some(play);
+        let issues = cfg.validate("twin");
+        let path = format!("twin.actuator.play.{key}");
+        assert!(
+            issues.iter().any(|i| i.path == path),
+            "{play:?}: {issues:?}"
         );
     }
 }
