@@ -15,7 +15,7 @@
 //! common currency of every decision the diagnosis makes.
 
 use crate::prony::{PronySeries, PronyTerm};
-use crate::twin::actuator::{ActuatorConfig, BoucWen, Creep, ResonantMode};
+use crate::twin::actuator::{ActuatorConfig, BoucWen, Creep, PlayHysteresis, ResonantMode};
 use crate::twin::detector::DetectorConfig;
 use crate::twin::dynamics::InputHold;
 use crate::twin::{
@@ -99,7 +99,7 @@ impl Effect {
     pub fn describe(self) -> &'static str {
         match self {
             Effect::PiezoHysteresis => {
-                "rate-independent hysteresis of the piezo actuator (Bouc–Wen)"
+                "rate-independent hysteresis of the piezo actuator (Bouc–Wen, or play operators: Prandtl–Ishlinskii)"
             }
             Effect::PiezoCreep => "creep of the piezo actuator after a voltage change",
             Effect::ThermalDrift => {
@@ -232,6 +232,25 @@ pub struct ModelSpec {
     pub mains_harmonics: bool,
     /// Which kind of mode `instrument_resonance` is.
     pub resonance: ResonanceForm,
+    /// Which loop `piezo_hysteresis` draws.
+    pub hysteresis: HysteresisForm,
+}
+
+/// The forms of `piezo_hysteresis`, fitted side by side. Bouc–Wen's loop is smooth, its
+/// branches bending toward saturation; a Prandtl–Ishlinskii loop (play operators) is made of
+/// straight pieces that turn as each operator takes up the drive, and closes on every
+/// reversal. Fitted at large size, one does not follow the other: an independent simulator's
+/// Prandtl–Ishlinskii loops 8–16 σ visible were named a drift, a creep or a detector's
+/// curvature with the Bouc–Wen form alone.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum HysteresisForm {
+    /// `dh = α·g·dv − β·|dv|·h − γ·dv·|h|` ([`crate::twin::actuator::BoucWen`]): ln α,
+    /// ln β, γ/β through tanh.
+    #[default]
+    BoucWen,
+    /// Play operators ([`crate::twin::actuator::PlayHysteresis`]): ln amplitude, ln of the
+    /// widest radius (V), the weights' shape.
+    Play,
 }
 
 /// The forms of `instrument_resonance`. The scanner's own mode rolls the motion off above
@@ -255,6 +274,10 @@ pub enum ResonanceForm {
 /// The parameters of a peaking `instrument_resonance`.
 const PEAKING_RESONANCE_NAMES: &[(&str, &str)] =
     &[("freq_hz", "Hz"), ("q", "1"), ("peak_gain", "1")];
+
+/// The parameters of a `piezo_hysteresis` of play operators.
+const PLAY_HYSTERESIS_NAMES: &[(&str, &str)] =
+    &[("amplitude", "1"), ("radius_v", "V"), ("weight_shape", "1")];
 
 /// The parameters of a partial `instrument_resonance`.
 const PARTIAL_RESONANCE_NAMES: &[(&str, &str)] =
@@ -1125,6 +1148,7 @@ impl ModelSpec {
             nonlinearity: NonlinearityForm::Both,
             mains_harmonics: false,
             resonance: ResonanceForm::RollOff,
+            hysteresis: HysteresisForm::BoucWen,
         }
     }
 
@@ -1184,6 +1208,9 @@ impl ModelSpec {
             let others = [ResonanceForm::Peaking, ResonanceForm::Partial];
             fork(&mut out, &others, |s, f| s.resonance = f);
         }
+        if first.has(Effect::PiezoHysteresis) && first.hysteresis == HysteresisForm::BoucWen {
+            fork(&mut out, &[HysteresisForm::Play], |s, f| s.hysteresis = f);
+        }
         if first.has(Effect::MainsInterference) && !first.mains_harmonics {
             fork(&mut out, &[true], |s, f| s.mains_harmonics = f);
         }
@@ -1211,6 +1238,7 @@ impl ModelSpec {
             nonlinearity: from(Effect::DetectorNonlinearity).nonlinearity,
             mains_harmonics: from(Effect::MainsInterference).mains_harmonics,
             resonance: from(Effect::InstrumentResonance).resonance,
+            hysteresis: from(Effect::PiezoHysteresis).hysteresis,
             ..ModelSpec::nominal(a.terms).with(&effects)
         }
     }
@@ -1233,6 +1261,8 @@ impl ModelSpec {
             PEAKING_RESONANCE_NAMES
         } else if e == Effect::InstrumentResonance && self.resonance == ResonanceForm::Partial {
             PARTIAL_RESONANCE_NAMES
+        } else if e == Effect::PiezoHysteresis && self.hysteresis == HysteresisForm::Play {
+            PLAY_HYSTERESIS_NAMES
         } else {
             e.nonlinear_names()
         }
@@ -1731,12 +1761,23 @@ impl Problem {
             p(Effect::PiezoHysteresis, 1),
             p(Effect::PiezoHysteresis, 2),
         ) {
-            let beta = b.exp();
-            actuator.hysteresis = Some(BoucWen {
-                alpha: a.exp(),
-                beta,
-                gamma: beta * g.tanh(),
-            });
+            match spec.hysteresis {
+                HysteresisForm::BoucWen => {
+                    let beta = b.exp();
+                    actuator.hysteresis = Some(BoucWen {
+                        alpha: a.exp(),
+                        beta,
+                        gamma: beta * g.tanh(),
+                    });
+                }
+                HysteresisForm::Play => {
+                    actuator.play = Some(PlayHysteresis {
+                        amplitude: a.exp(),
+                        radius_v: b.exp(),
+                        shape: g,
+                    });
+                }
+            }
         }
         if let (Some(f), Some(t)) = (p(Effect::PiezoCreep, 0), p(Effect::PiezoCreep, 1)) {
             actuator.creep = Some(Creep {
@@ -2798,6 +2839,12 @@ impl Problem {
                     // The surface drift is signed and fitted on a linear scale.
                     let k = SURFACE_DRIFT_SCALE_NM_PER_S;
                     (k * x, [k * (x - 1.96 * s), k * (x + 1.96 * s)])
+                } else if effect == Effect::PiezoHysteresis
+                    && i == 2
+                    && spec.hysteresis == HysteresisForm::Play
+                {
+                    // The weights' shape is fitted on a linear scale.
+                    (x, [x - 1.96 * s, x + 1.96 * s])
                 } else if effect == Effect::PiezoHysteresis && i == 2 {
                     // γ = β·tanh(s): report γ with the interval mapped through.
                     let beta = th[o + 1].exp();
@@ -3348,6 +3395,14 @@ mod tests {
         );
         assert_eq!(resonance[1].n_nonlinear(), resonance[0].n_nonlinear() + 1);
         assert_eq!(resonance[2].n_nonlinear(), resonance[0].n_nonlinear() + 1);
+        let hysteresis = forms(&[Effect::PiezoHysteresis]);
+        let kinds: Vec<HysteresisForm> = hysteresis.iter().map(|s| s.hysteresis).collect();
+        assert_eq!(kinds, [HysteresisForm::BoucWen, HysteresisForm::Play]);
+        assert_eq!(hysteresis[1].n_nonlinear(), hysteresis[0].n_nonlinear());
+        assert_eq!(
+            hysteresis[1].params_of(Effect::PiezoHysteresis)[0].0,
+            "amplitude"
+        );
         let mains = forms(&[Effect::MainsInterference]);
         assert_eq!(mains.len(), 2);
         assert!(!mains[0].mains_harmonics && mains[1].mains_harmonics);
@@ -3393,5 +3448,8 @@ mod tests {
             (pair.drift, pair.adhesion, pair.tip),
             (DriftForm::Surface, AdhesionForm::Neck, TipForm::Blunted)
         );
+        let pair = ModelSpec::pair_of(&drift[2], &hysteresis[1]);
+        assert_eq!(pair.hysteresis, HysteresisForm::Play);
+        assert_eq!(hysteresis[1].clone().variants().len(), 1);
     }
 }
