@@ -3243,14 +3243,7 @@ fn delay_start_behind_sensed_stage(
     if !l0.is_finite() {
         return None;
     }
-    let rss_at = |lag: f64, q: f64| {
-        let mut th = nom.theta.clone();
-        th[lag_at] = lag;
-        th[lag_at + 1] = q;
-        witness
-            .dynamics_rss(&sensor_path(problem, &nom.spec, &th))
-            .map_or(f64::INFINITY, |r| r.0)
-    };
+    let rss_at = |lag: f64, q: f64| sensor_rss_at_stage(problem, nom, witness, lag, q);
     let (lag, q, _) = (0..=8)
         .map(|k| std::f64::consts::PI * k as f64 / 8.0)
         .filter_map(|q| {
@@ -3273,8 +3266,21 @@ fn delay_start_behind_sensed_stage(
 /// The height sensor's train RSS (nm²) against the nominal fit `nom`'s stage path with its
 /// actuator's lag set to `lag` samples (its damping held); infinite where it cannot be read.
 fn sensor_rss_at_lag(problem: &Problem, nom: &Fitted, witness: &HeightWitness, lag: f64) -> f64 {
+    let damping = nom.theta[nom.spec.actuator_lag() + 1];
+    sensor_rss_at_stage(problem, nom, witness, lag, damping)
+}
+
+/// [`sensor_rss_at_lag`] with the actuator's damping coordinate set to `damping` as well.
+fn sensor_rss_at_stage(
+    problem: &Problem,
+    nom: &Fitted,
+    witness: &HeightWitness,
+    lag: f64,
+    damping: f64,
+) -> f64 {
     let mut th = nom.theta.clone();
     th[nom.spec.actuator_lag()] = lag;
+    th[nom.spec.actuator_lag() + 1] = damping;
     witness
         .dynamics_rss(&sensor_path(problem, &nom.spec, &th))
         .map_or(f64::INFINITY, |r| r.0)
@@ -5062,10 +5068,21 @@ mod tests {
     /// lags [`STAGE_LAG_SAMPLES`], recorded as [`sensed`] (with a height sensor of
     /// `sensor_nm` rms, if any).
     fn delayed_behind_a_lagging_stage(delay_samples: f64, sensor_nm: Option<f64>) -> Recording {
+        delayed_behind_a_stage(delay_samples, STAGE_LAG_SAMPLES, 0.5, sensor_nm)
+    }
+
+    /// The twin of seed 22 with its deflection channel `delay_samples` behind a stage that
+    /// lags `stage_lag_samples` with damping `q`, recorded as [`sensed`].
+    fn delayed_behind_a_stage(
+        delay_samples: f64,
+        stage_lag_samples: f64,
+        q: f64,
+        sensor_nm: Option<f64>,
+    ) -> Recording {
         let fs = SENSED_FS_HZ;
         let mut twin = nominal_twin(22);
         twin.detector.delay_s = delay_samples / fs;
-        let (drive_v, stage_v) = through_lagging_stage(STAGE_LAG_SAMPLES / fs, 0.5);
+        let (drive_v, stage_v) = through_lagging_stage(stage_lag_samples / fs, q);
         sensed(&twin, &stage_v, &drive_v, sensor_nm)
     }
 
@@ -5174,10 +5191,7 @@ mod tests {
     fn a_delay_of_several_samples_is_read_behind_the_stage_its_sensor_reads() {
         let fs = SENSED_FS_HZ;
         let (delay_samples, stage_lag_samples, q) = (5.0, 5.0, 0.6);
-        let mut twin = nominal_twin(22);
-        twin.detector.delay_s = delay_samples / fs;
-        let (drive_v, stage_v) = through_lagging_stage(stage_lag_samples / fs, q);
-        let rec = sensed(&twin, &stage_v, &drive_v, Some(0.05));
+        let rec = delayed_behind_a_stage(delay_samples, stage_lag_samples, q, Some(0.05));
         let seen = diagnose(&rec, &corpus_options()).unwrap();
         assert_eq!(seen.named(), ["channel_delay"], "{:?}", seen.effects[0]);
         let delay = seen.effects[0]
@@ -6560,13 +6574,7 @@ mod tests {
             "{top:?}"
         );
         let half_range = 0.5 * (hi - lo);
-        let loop_area = |p: &PlayHysteresis| {
-            (p.operators().iter())
-                .map(|&(r, w)| w * 4.0 * r.min(half_range) * (half_range - r).max(0.0))
-                .sum::<f64>()
-                * p.amplitude
-        };
-        let ratio = loop_area(&fitted) / loop_area(&truth);
+        let ratio = fitted.loop_area(half_range) / truth.loop_area(half_range);
         assert!(
             (ratio - 1.0).abs() < 0.1,
             "loop area ratio {ratio}: {top:?}"

@@ -123,6 +123,17 @@ impl PlayHysteresis {
         let total: f64 = (0..PLAY_OPERATORS).map(raw).sum();
         std::array::from_fn(|i| (self.radius_v * (i + 1) as f64 / n, raw(i) / total))
     }
+
+    /// Area (V², per unit gain) of the loop the drive through the operators draws against
+    /// the drive over a swing of ±`amplitude_v`: each operator's parallelogram `4r(A − r)`
+    /// (none for an operator wider than the swing), weighted, times `amplitude`.
+    pub fn loop_area(&self, amplitude_v: f64) -> f64 {
+        let parallelogram = |r: f64| 4.0 * r.min(amplitude_v) * (amplitude_v - r).max(0.0);
+        (self.operators().iter())
+            .map(|&(r, w)| w * parallelogram(r))
+            .sum::<f64>()
+            * self.amplitude
+    }
 }
 
 /// Linear creep: an extra `fraction·g·v` approached with time constant `tau_s`; or, with
@@ -336,11 +347,8 @@ mod tests {
             creep: None,
             play: Some(play),
         };
-        let expected: f64 = (play.operators().iter())
-            .map(|&(r, w)| w * 4.0 * r * (5.0 - r))
-            .sum::<f64>()
-            * 100.0
-            * 0.1;
+        // Every operator is narrower than the swing here (2 V of 5).
+        let expected = play.loop_area(5.0) * 100.0;
         for (freq_hz, fs_hz) in [(1.0, 4000.0), (100.0, 8000.0)] {
             let area = loop_area(&cfg, freq_hz, fs_hz);
             assert!(
