@@ -1668,8 +1668,19 @@ pub fn diagnose_observed(
                 .collect(),
             None => chosen,
         };
+        // Where the sensor refutes the nominal lag, the part of the deflection's lag that
+        // lies after the stage is a delay's or the sample's: the nominal twin held at the
+        // sensor's lag (`SensorLag::nominal_at_sensor_lag`) is the start of the sample's
+        // candidates too, and they are refitted whatever the screening said.
+        let pinned = (sensor_lag.as_ref())
+            .and_then(|s| s.nominal_at_sensor_lag(&problem, nom, refit_opts, fan));
         if sensor_lag.is_some() {
             mark_for_refit(&screened, &mut to_refit, Effect::ChannelDelay);
+            if pinned.is_some() {
+                for e in SAMPLE_LAG_TRADERS {
+                    mark_for_refit(&screened, &mut to_refit, e);
+                }
+            }
         }
         if wander_first {
             mark_for_refit(&screened, &mut to_refit, Effect::ThermalDrift);
@@ -1828,6 +1839,17 @@ pub fn diagnose_observed(
                         _ => best,
                     }
                 }
+                (e, Some(s), _) if SAMPLE_LAG_TRADERS.contains(&e) => match &pinned {
+                    Some(p) => {
+                        let st: Vec<Vec<f64>> = (ctx.starts(&problem, p, e, fan).iter())
+                            .take(1)
+                            .map(|t| ctx.extend(&problem, &best.spec, t))
+                            .collect();
+                        let alt = fit_model(&problem, &best.spec, &st, refit_opts, fan);
+                        lower_on_both(best, alt, |f| s.chi2(&problem, f).map(|c| c.0))
+                    }
+                    None => best,
+                },
                 (Effect::PiezoCreep, _, Some(w)) => {
                     let alt = sensor_creep_fit(&problem, nom, w, refit_opts, fan);
                     lower_on_both(best, alt, |f| {
@@ -3089,6 +3111,15 @@ fn lower_on_both(
 fn sensor_path(problem: &Problem, spec: &ModelSpec, th: &[f64]) -> Vec<f64> {
     stage_path(problem, spec, th, &problem.twin_drive(spec, th))
 }
+
+/// The sample's candidates that may take up the part of the deflection's lag a height sensor
+/// says lies after the stage (`SensorLag`): a film's, a tip's or a retardation time's
+/// contact, where a delay of the deflection's channel would otherwise be named for it.
+const SAMPLE_LAG_TRADERS: [Effect; 3] = [
+    Effect::SubstrateEffect,
+    Effect::TipGeometry,
+    Effect::MissingRelaxation,
+];
 
 /// Least skew, in samples, between the deflection's lag and the height sensor's that
 /// `SensorLag` takes for a delay in the deflection's channel. Two channels of one converter
