@@ -21,10 +21,11 @@
 //!
 //! Beside the path, the regression has free nuisance terms that say nothing about the
 //! catalog: the sensor's own scale and zero, a slow parabola of its own drift (capacitive
-//! sensors warm too), and the first two derivatives of the drive for the actuator's linear
-//! dynamics. Its noise is the residual of the nominal path, so structure the witness does
-//! not model only widens the scale and weakens its evidence. Those derivative columns absorb
-//! any lag; [`HeightWitness::dynamics_rss`] scores a path that carries the actuator's lag
+//! sensors warm too), and the first two derivatives of the drive for what the path's linear
+//! dynamics miss. Its noise is the residual of the nominal path (the drive's own, or the
+//! nominal model's stage path where that reads better: [`HeightWitness::read_along`]), so
+//! structure the witness does not model only widens the scale and weakens its evidence.
+//! Those derivative columns absorb a small lag; [`HeightWitness::dynamics_rss`] scores a path that carries the actuator's lag
 //! itself without them, for where the sensor's lag says something the deflection cannot
 //! (a delay after the stage: `SensorLag` in the diagnosis).
 
@@ -356,6 +357,27 @@ impl HeightWitness {
             sigma_nm,
             nominal,
         })
+    }
+
+    /// This witness with its noise scale and nominal χ² read off `path_nm` (the nominal
+    /// model's stage path, its linear dynamics carried) where that fits the sensor better than
+    /// the drive does: beside a stage slow against the excitation, the drive's two derivative
+    /// columns do not follow its dynamics, and the residual they leave is the stage's, not the
+    /// sensor's noise. Itself otherwise.
+    pub fn read_along(&self, path_nm: &[f64]) -> Self {
+        let better = self
+            .fit
+            .noise_scale(&[path_nm])
+            .filter(|&sigma| sigma < self.sigma_nm)
+            .and_then(|sigma| Some((sigma, self.fit.chi2(&[path_nm], sigma)?)));
+        match better {
+            Some((sigma_nm, nominal)) => Self {
+                sigma_nm,
+                nominal,
+                ..self.clone()
+            },
+            None => self.clone(),
+        }
     }
 
     /// Residual sums of squares (train, held-out; nm²) of the sensor against `path_nm`, a
