@@ -25,9 +25,10 @@
 //! dynamics miss. Its noise is the residual of the nominal path (the drive's own, or the
 //! nominal model's stage path where that reads better: [`HeightWitness::read_along`]), so
 //! structure the witness does not model only widens the scale and weakens its evidence.
-//! Those derivative columns absorb a small lag; [`HeightWitness::dynamics_rss`] scores a path that carries the actuator's lag
-//! itself without them, for where the sensor's lag says something the deflection cannot
-//! (a delay after the stage: `SensorLag` in the diagnosis).
+//! Those derivative columns absorb a small lag; [`HeightWitness::dynamics_rss`] scores a
+//! path that carries the actuator's lag itself without them, for where the sensor's lag
+//! says something the deflection cannot (a delay after the stage: `SensorLag` in the
+//! diagnosis).
 
 //!
 //! [`ReferenceWitness`]: a `reference_deflection_v` column, the same drive on a hard reference
