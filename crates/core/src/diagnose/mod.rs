@@ -1855,10 +1855,11 @@ pub fn diagnose_observed(
                     None => best,
                 },
                 (Effect::PiezoCreep, _, Some(w)) => {
-                    let alt = sensor_creep_fit(&problem, nom, w, refit_opts, fan);
+                    // Both fits' stage paths read on the sensor as the judgement reads them.
+                    let w = w.read_along(&sensor_path(&problem, &nom.spec, &nom.theta));
+                    let alt = sensor_creep_fit(&problem, nom, &w, refit_opts, fan);
                     lower_on_both(best, alt, |f| {
-                        piezo_path(&problem, &f.spec, &f.theta)
-                            .and_then(|p| w.chi2(&p))
+                        w.chi2(&sensor_path(&problem, &f.spec, &f.theta))
                             .map(|c| c.0)
                     })
                 }
@@ -3055,18 +3056,6 @@ fn held_spread_v(problem: &Problem) -> f64 {
         .sqrt()
 }
 
-/// The piezo's path (nm) under model `spec` at `th`: the drive through its twin's actuator,
-/// gain, creep and hysteresis, without the modes (a height sensor on the scanner need not
-/// see a frame's mode, and the witness has its own terms for the actuator's linear
-/// dynamics). `None` for a model with neither creep nor hysteresis: its path is the drive
-/// itself, which the witness scores as [`HeightWitness::nominal`].
-fn piezo_path(problem: &Problem, spec: &ModelSpec, th: &[f64]) -> Option<Vec<f64>> {
-    if !spec.has(Effect::PiezoCreep) && !spec.has(Effect::PiezoHysteresis) {
-        return None;
-    }
-    Some(stage_path(problem, spec, th, &problem.drive))
-}
-
 /// `drive` through the twin of `spec` at `th`'s actuator without its modes: gain, creep and
 /// hysteresis (nm).
 fn stage_path(problem: &Problem, spec: &ModelSpec, th: &[f64], drive: &[f64]) -> Vec<f64> {
@@ -3118,9 +3107,10 @@ fn lower_on_both(
 }
 
 /// The stage's path (nm) under model `spec` at `th` as its height sensor reads it: the drive
-/// through the nominal actuator's linear dynamics (its lag), then its gain, creep and
-/// hysteresis, without the candidates' modes (as [`piezo_path`]). A delay in the deflection's
-/// channel is not on this path: the sensor reads the stage before the detector.
+/// through the nominal actuator's linear dynamics (its lag), then its gain, creep and hysteresis,
+/// without the candidates' modes (a height sensor on the scanner need not see a frame's mode). A
+/// delay in the deflection's channel is not on this path: the sensor reads the stage before the
+/// detector.
 fn sensor_path(problem: &Problem, spec: &ModelSpec, th: &[f64]) -> Vec<f64> {
     stage_path(problem, spec, th, &problem.twin_drive(spec, th))
 }
