@@ -1865,11 +1865,12 @@ pub fn diagnose_observed(
                     None => best,
                 },
                 (Effect::PiezoCreep, _, Some(w)) => {
-                    // Both fits' stage paths read on the sensor as the judgement reads them.
-                    let w = w.read_along(&sensor_path(&problem, &nom.spec, &nom.theta));
-                    let alt = sensor_creep_fit(&problem, nom, &w, refit_opts, fan);
+                    let alt = sensor_creep_fit(&problem, nom, w, refit_opts, fan);
+                    // Both fits' stage paths read on the sensor as the judgement reads them
+                    // (the creep's own regression above needs no noise scale).
+                    let read = w.read_along(&sensor_path(&problem, &nom.spec, &nom.theta));
                     lower_on_both(best, alt, |f| {
-                        w.chi2(&sensor_path(&problem, &f.spec, &f.theta))
+                        read.chi2(&sensor_path(&problem, &f.spec, &f.theta))
                             .map(|c| c.0)
                     })
                 }
