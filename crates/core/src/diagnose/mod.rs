@@ -1580,27 +1580,23 @@ pub fn diagnose_observed(
             let spec = nominal.with(&[e]);
             let st = ctx.starts(&problem, nom, e, fan);
             let plain = screen(&problem, &spec, &st, &q, fan);
-            // A tip is screened in its power-law form too, and stands for the better of the
-            // two; the plain form's θ is what the refits extend (`StartContext::extend`).
-            let c = match e {
-                Effect::TipGeometry => plain
-                    .as_ref()
-                    .map(|p| p.0)
-                    .into_iter()
-                    .chain(ctx.screen_power_law(&problem, nom, &q, fan))
-                    .reduce(f64::min),
-                // A drag in both its readings of the base's rate (`DragForm`): the same θ.
+            // A tip is screened in its power-law form too, a drag in its centred reading of
+            // the base's rate (`DragForm`, the same θ); each stands for the better of its two.
+            // The plain form's θ is what the refits extend (`StartContext::extend`).
+            let other = match e {
+                Effect::TipGeometry => ctx.screen_power_law(&problem, nom, &q, fan),
                 Effect::HydrodynamicDrag => {
                     let centred = ModelSpec {
                         drag: model::DragForm::Centred,
                         ..spec.clone()
                     };
-                    (plain.as_ref().map(|p| p.0).into_iter())
-                        .chain(screen(&problem, &centred, &st, &q, fan).map(|p| p.0))
-                        .reduce(f64::min)
+                    screen(&problem, &centred, &st, &q, fan).map(|p| p.0)
                 }
-                _ => plain.as_ref().map(|p| p.0),
+                _ => None,
             };
+            let c = (plain.as_ref().map(|p| p.0).into_iter())
+                .chain(other)
+                .reduce(f64::min);
             let th = plain.map_or_else(|| st.first().cloned(), |p| Some(p.1));
             c.zip(th).map(|(c, th)| (e, nom.eval.chi2_train - c, th))
         })
