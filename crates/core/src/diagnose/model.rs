@@ -243,12 +243,13 @@ pub struct ModelSpec {
 /// for it is not recorded. The twin steps causally and takes the second-order backward
 /// difference ([`crate::twin::base_velocity`]); a simulator that computes the base path
 /// first, or a real stage's continuous motion, is read better by the central difference,
-/// which keeps the rate's phase at every frequency (its error is in gain alone, 10 % low at
-/// a fifth of the sample rate), where the backward one leads and overshoots (12 % high at a
-/// tenth of it, by 2.2 times at a quarter). Across a force step a few samples long the two
-/// differ by their whole size: an independent simulator's drag on a 2 kHz step record
-/// (`np.gradient`, the central difference) was read as a mode and a drag of half its size,
-/// 5.6 times the floor left. The forms are fitted side by side; neither adds a parameter.
+/// which keeps the rate's phase at every frequency (its error is in gain alone: 6.5 % low at
+/// a tenth of the sample rate, 24 % at a fifth), where the backward one overshoots and lags
+/// (12 % high and 3° late at a tenth, 34 % and 17° at a fifth). Across a force step a few
+/// samples long the two differ by their whole size: an independent simulator's drag on a
+/// 2 kHz step record (`np.gradient`, the central difference) was read as a mode and a drag
+/// of half its size, 5.6 times the floor left. The forms are fitted side by side; neither
+/// adds a parameter.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum DragForm {
     /// `(3b[n] − 4b[n−1] + b[n−2])/(2Δt)`: the twin's own reading.
