@@ -1741,6 +1741,7 @@ pub(crate) mod tests {
                         crate::recording::Tip::Cone { .. }
                     );
                 let none = e == Effect::InstrumentResonance
+                    || spec.other_reading
                     || e == Effect::TipGeometry
                         && (matches!(spec.tip, TipForm::Swap | TipForm::Blunted) || worn_cone);
                 if none {

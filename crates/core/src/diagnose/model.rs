@@ -1357,7 +1357,9 @@ impl ModelSpec {
     /// closed-form terms are solved as ever. `None` where a form has no such point: a tip
     /// swapped for the other shape or blunted (no parameter value of the blunted cone is the
     /// declared sphere: `blunted` keeps a sliver of cone), a cone worn flat (it is worn from
-    /// a sphere), or a resonance (a mode beyond every frequency is no parameter value).
+    /// a sphere), a resonance (a mode beyond every frequency is no parameter value), or a
+    /// model that reads the drive the other way ([`ModelSpec::other_reading`]: at no delay it
+    /// is the nominal twin read that way, not the nominal twin).
     pub fn at_nothing(
         &self,
         theta: &[f64],
@@ -1365,7 +1367,7 @@ impl ModelSpec {
         declared: TipConfig,
     ) -> Option<Vec<f64>> {
         let n_nom = self.n_nominal();
-        if theta.len() != self.n_nonlinear() || nominal.len() != n_nom {
+        if theta.len() != self.n_nonlinear() || nominal.len() != n_nom || self.other_reading {
             return None;
         }
         let mut t = theta.to_vec();
