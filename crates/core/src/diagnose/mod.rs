@@ -472,22 +472,34 @@ fn blind_spots_of(
 /// resolve it.)
 fn tip_size_spot(tip: crate::recording::Tip) -> BlindSpot {
     use crate::recording::Tip;
-    let why = match tip {
-        Tip::Sphere { radius_nm } => format!(
-            "the tip's radius enters the contact only as a scale of the load (u = 9P/(16√R)), which the compliance's own scale takes up whole: no deflection record of one sample can check the declared {radius_nm:.1} nm, at any size, and the moduli reported carry it (E ∝ R^−1/2: a radius 10 % larger would put every modulus {:.1} % lower); an indentation of a sample of known modulus, or an image of the tip, would show it (a change of the tip's shape is looked for: it is not a scale)",
-            100.0 * (1.0 - 1.1_f64.sqrt().recip())
+    // What sets the size, the law it scales the load by, the declared value, how the
+    // moduli follow it, and what a stated change of it does to them (%).
+    let (size, law, declared, follows, change, lower) = match tip {
+        Tip::Sphere { radius_nm } => (
+            "radius",
+            "u = 9P/(16√R)",
+            format!("{radius_nm:.1} nm"),
+            "E ∝ R^−1/2",
+            "a radius 10 % larger",
+            100.0 * (1.0 - 1.1_f64.sqrt().recip()),
         ),
         Tip::Cone { half_angle_deg } => {
             let tan = |deg: f64| deg.to_radians().tan();
-            format!(
-                "the tip's half-angle enters the contact only as a scale of the load (P = (2/π)·tan α·E*·h²), which the compliance's own scale takes up whole: no deflection record of one sample can check the declared {half_angle_deg:.1}°, at any size, and the moduli reported carry it (E ∝ 1/tan α: a cone 1° wider would put every modulus {:.1} % lower); an indentation of a sample of known modulus, or an image of the tip, would show it (a change of the tip's shape is looked for: it is not a scale)",
-                100.0 * (1.0 - tan(half_angle_deg) / tan(half_angle_deg + 1.0))
+            (
+                "half-angle",
+                "P = (2/π)·tan α·E*·h²",
+                format!("{half_angle_deg:.1}°"),
+                "E ∝ 1/tan α",
+                "a cone 1° wider",
+                100.0 * (1.0 - tan(half_angle_deg) / tan(half_angle_deg + 1.0)),
             )
         }
     };
     BlindSpot {
         id: Effect::TipGeometry.id(),
-        why,
+        why: format!(
+            "the tip's {size} enters the contact only as a scale of the load ({law}), which the compliance's own scale takes up whole: no deflection record of one sample can check the declared {declared}, at any size, and the moduli reported carry it ({follows}: {change} would put every modulus {lower:.1} % lower); an indentation of a sample of known modulus, or an image of the tip, would show it (a change of the tip's shape is looked for: it is not a scale)"
+        ),
     }
 }
 
