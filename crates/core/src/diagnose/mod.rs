@@ -6383,6 +6383,20 @@ mod tests {
         );
     }
 
+    /// Twin 5 behind a stage whose input it ramps from sample to sample: a mode of Q 0.7
+    /// lagging half a sample at [`FS_HZ`] (`InputHold::Ramped`).
+    fn ramped_stage_twin() -> TwinConfig {
+        use crate::twin::actuator::ResonantMode;
+        use crate::twin::dynamics::InputHold;
+        let (lag_s, q) = (0.5 / FS_HZ, 0.7);
+        let mut twin = nominal_twin(5);
+        twin.actuator.modes = vec![ResonantMode {
+            input: InputHold::Ramped,
+            ..ResonantMode::held(1.0 / (2.0 * std::f64::consts::PI * q * lag_s), q)
+        }];
+        twin
+    }
+
     /// A stage whose input the twin ramps from sample to sample (a mode of Q 0.7 lagging half
     /// a sample, `InputHold::Ramped`: what a DAC or a simulator that interpolates linearly
     /// gives) is read so by the nominal twin (`DriveReading::Linear`), and the null record
@@ -6392,15 +6406,8 @@ mod tests {
     /// passes the drive as recorded however it is read, stays band-limited.
     #[test]
     fn a_stage_ramped_between_samples_is_read_so_and_names_nothing() {
-        use crate::twin::actuator::ResonantMode;
-        use crate::twin::dynamics::InputHold;
         let (drive_v, _) = protocol_drive(FS_HZ);
-        let (lag_s, q) = (0.5 / FS_HZ, 0.7);
-        let mut twin = nominal_twin(5);
-        twin.actuator.modes = vec![ResonantMode {
-            input: InputHold::Ramped,
-            ..ResonantMode::held(1.0 / (2.0 * std::f64::consts::PI * q * lag_s), q)
-        }];
+        let twin = ramped_stage_twin();
         let d = diagnose(&simulate(&twin, &drive_v, FS_HZ, None), &corpus_options()).unwrap();
         assert_eq!(d.drive_reading, super::DriveReading::Linear);
         let named: Vec<_> = d.effects.iter().filter(|e| e.significant).collect();
@@ -6418,16 +6425,9 @@ mod tests {
     /// outside its interval (checked).
     #[test]
     fn a_delay_behind_a_ramped_stage_is_read_with_the_stages_reading() {
-        use crate::twin::actuator::ResonantMode;
-        use crate::twin::dynamics::InputHold;
         let (drive_v, _) = protocol_drive(FS_HZ);
-        let (lag_s, q) = (0.5 / FS_HZ, 0.7);
         let delay_s = 1.0 / FS_HZ;
-        let mut twin = nominal_twin(5);
-        twin.actuator.modes = vec![ResonantMode {
-            input: InputHold::Ramped,
-            ..ResonantMode::held(1.0 / (2.0 * std::f64::consts::PI * q * lag_s), q)
-        }];
+        let mut twin = ramped_stage_twin();
         twin.detector.delay_s = delay_s;
         let d = diagnose(&simulate(&twin, &drive_v, FS_HZ, None), &corpus_options()).unwrap();
         assert_eq!(d.drive_reading, super::DriveReading::BandLimited);
