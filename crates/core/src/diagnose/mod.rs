@@ -1886,9 +1886,13 @@ pub fn diagnose_observed(
                     let start = [s.delay_start(nom, fs)];
                     let alt = fit_model(&problem, &spec, &start, refit_opts, fan)
                         .map(|f| s.with_delay_sd(f, nom, fs));
-                    let best = lower_on_both(best, alt, |f| s.chi2(&problem, f).map(|c| c.0));
+                    let best = lower_on_both(&problem, n_tr, best, alt, |f| {
+                        s.chi2(&problem, f).map(|c| c.0)
+                    });
                     let staged = delay_behind_sensed_stage(s.witness);
-                    lower_on_both(best, staged, |f| s.chi2(&problem, f).map(|c| c.0))
+                    lower_on_both(&problem, n_tr, best, staged, |f| {
+                        s.chi2(&problem, f).map(|c| c.0)
+                    })
                 }
                 (Effect::ChannelDelay, None, Some(w)) => {
                     // The sensor's χ² in units of the nominal stage path's mean square
@@ -1900,7 +1904,9 @@ pub fn diagnose_observed(
                     match on_sensor(nom).map(|r| r / w.dynamics_dof()) {
                         Some(s2) if s2 > 0.0 => {
                             let staged = delay_behind_sensed_stage(w);
-                            lower_on_both(best, staged, |f| on_sensor(f).map(|r| r / s2))
+                            lower_on_both(&problem, n_tr, best, staged, |f| {
+                                on_sensor(f).map(|r| r / s2)
+                            })
                         }
                         _ => best,
                     }
@@ -1912,7 +1918,9 @@ pub fn diagnose_observed(
                             .map(|t| ctx.extend(&problem, &best.spec, t))
                             .collect();
                         let alt = fit_model(&problem, &best.spec, &st, refit_opts, fan);
-                        lower_on_both(best, alt, |f| s.chi2(&problem, f).map(|c| c.0))
+                        lower_on_both(&problem, n_tr, best, alt, |f| {
+                            s.chi2(&problem, f).map(|c| c.0)
+                        })
                     }
                     None => best,
                 },
@@ -1921,7 +1929,7 @@ pub fn diagnose_observed(
                     // Both fits' stage paths read on the sensor as the judgement reads them
                     // (the creep's own regression above needs no noise scale).
                     let read = w.read_along(&sensor_path(&problem, &nom.spec, &nom.theta));
-                    lower_on_both(best, alt, |f| {
+                    lower_on_both(&problem, n_tr, best, alt, |f| {
                         read.chi2(&sensor_path(&problem, &f.spec, &f.theta))
                             .map(|c| c.0)
                     })
@@ -3159,13 +3167,23 @@ fn sensor_creep_fit(
 }
 
 /// `best`, or `alt` where it has the lower train χ² over the deflection and the height sensor
-/// (`sensor_train`; a model the sensor cannot score stands no chance).
+/// (`sensor_train`; a model the sensor cannot score stands no chance), each priced `ln n` per
+/// parameter over `n_train` samples. The two are fits of one candidate, mostly of one spec;
+/// but `best` may read the drive the other way (`ModelSpec::other_reading`), one parameter
+/// more than the sensor's fits of the plain spec, and without the price it would stand on any
+/// χ² it gained.
 fn lower_on_both(
+    problem: &Problem,
+    n_train: f64,
     best: Fitted,
     alt: Option<Fitted>,
     sensor_train: impl Fn(&Fitted) -> Option<f64>,
 ) -> Fitted {
-    let both = |f: &Fitted| f.eval.chi2_train + sensor_train(f).unwrap_or(f64::INFINITY);
+    let both = |f: &Fitted| {
+        f.eval.chi2_train
+            + sensor_train(f).unwrap_or(f64::INFINITY)
+            + model::n_params(problem, &f.spec) as f64 * n_train.ln()
+    };
     match alt {
         Some(a) if both(&a) < both(&best) => a,
         _ => best,
@@ -5636,6 +5654,44 @@ mod tests {
         let spec = ModelSpec::nominal(super::corpus::MATERIAL_TERMS);
         let truth = super::model::truth_theta(&problem, twin, spec.terms);
         (rec, problem, spec, truth)
+    }
+
+    /// Of two fits of one candidate, the one reading the drive the other way pays for its
+    /// reading: within `ln n` of the plain fit's χ² over both channels the plain fit stands,
+    /// beyond it the other reading. Unpriced, the other reading stood on any χ² it gained.
+    #[test]
+    fn the_other_reading_pays_its_price_against_the_sensors_fit() {
+        let (_, problem, spec, truth) = reference_case(&nominal_twin(33), 5000.0);
+        let opts = FitOptions {
+            max_iterations: 1,
+            max_step: 1.0,
+            stall: None,
+        };
+        let plain = fit_model(&problem, &spec, &[truth], opts, &Serial).unwrap();
+        let n_tr = problem.train.len() as f64;
+        let other_by = |gain: f64| {
+            let mut f = plain.clone();
+            f.spec.other_reading = true;
+            f.eval.chi2_train -= gain * n_tr.ln();
+            f
+        };
+        let stands = |gain: f64| {
+            let on_sensor = |_: &super::fit::Fitted| Some(3.0);
+            super::lower_on_both(
+                &problem,
+                n_tr,
+                other_by(gain),
+                Some(plain.clone()),
+                on_sensor,
+            )
+            .spec
+            .other_reading
+        };
+        assert!(!stands(0.5), "the other reading stood on half its price");
+        assert!(
+            stands(1.5),
+            "the other reading fell with one and a half its price"
+        );
     }
 
     /// The hard reference reads the chain's lag wherever the nominal model's lag starts: a
