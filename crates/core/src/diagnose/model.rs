@@ -752,7 +752,14 @@ type ModeKey = (u64, u64, u64, DriveReading);
 /// ramps its drive (the third proxy, `tools/blind-sim3`) had a roll-off or peaking
 /// `instrument_resonance` named on 15 of its 46 records that hold no mode, two of them
 /// nulls, each near the Nyquist frequency taking up the difference, and the nominal fits'
-/// damping sat at its bound. The nominal fit reads the drive both ways (`diagnose`),
+/// damping sat at its bound. A command a DAC holds from sample to sample, with no
+/// reconstruction filter (most DACs; a zero-order-hold discretisation of the stage, scipy's
+/// `cont2discrete(..., "zoh")` and `dlsim`), is a staircase, and each sample of the
+/// deflection reads the stage as the step before it left it: half a sample late behind a
+/// slow stage, a whole sample behind a fast one, and the steps' sinc droop on the upper
+/// band. A fourth independent simulator (`tools/blind-sim4`) holds its drive so: a
+/// `channel_delay` of 0.94–0.97 samples was named on three of its records with no delay in
+/// their truth, one a null. The nominal fit reads the drive each way (`diagnose`),
 /// band-limited first.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
 pub enum DriveReading {
@@ -761,17 +768,22 @@ pub enum DriveReading {
     BandLimited,
     /// Straight lines between the samples (a first-order hold).
     Linear,
+    /// Each sample held until the next (a zero-order hold), the deflection sampled as the
+    /// next step begins ([`HeldMode`]).
+    Held,
 }
 
 /// What a `channel_delay` read with the drive the other way is, in the report.
 pub const OTHER_READING_DELAY_TEXT: &str = "a delay of the deflection channel behind the drive (with the drive read between its samples the other way from the nominal twin's reading, at one parameter's price)";
 
 impl DriveReading {
-    /// The other reading.
+    /// The other reading a delay is also fitted with: the band-limited and the linear
+    /// readings differ in the upper band's gain alone, which a delay taken up in the lag
+    /// tips (`ModelSpec::other_reading`); the held reading's other is the band-limited.
     pub fn other(self) -> Self {
         match self {
             DriveReading::BandLimited => DriveReading::Linear,
-            DriveReading::Linear => DriveReading::BandLimited,
+            DriveReading::Linear | DriveReading::Held => DriveReading::BandLimited,
         }
     }
 
@@ -780,6 +792,7 @@ impl DriveReading {
         match self {
             DriveReading::BandLimited => "band_limited",
             DriveReading::Linear => "linear",
+            DriveReading::Held => "held",
         }
     }
 }
@@ -861,6 +874,74 @@ impl RampedMode {
             h += c * zm1 * zm1 / (self.t * (z - e));
         }
         h
+    }
+}
+
+/// The nominal actuator's mode `1/(1 + s/(ω0·Q) + s²/ω0²)` driven by the drive held at each
+/// sample until the next, as the samples of its output see it, each taken as the next step
+/// begins: the mode's zero-order-hold equivalent `H(z) = (z − 1)/z · Z{H(s)/s}` (Franklin,
+/// Powell & Workman, *Digital Control*, §6.3.1), the discretisation `dlsim` steps. With
+/// `H(s)/s = 1/s + Σ dᵢ/(s − pᵢ)` (pᵢ the poles, dᵢ = ω0²/(pᵢ·(pᵢ − pⱼ))) it is
+/// `1 + Σ dᵢ·(z − 1)/(z − e^{pᵢT})`: unit gain at rest, nothing of a sample in the same
+/// sample's output, and a ramp lagged by `−Σ dᵢ/(1 − e^{pᵢT})` samples (`line_lag`): the lag
+/// and half a sample behind a slow mode, one sample behind a fast one.
+struct HeldMode {
+    poles: [(
+        rustfft::num_complex::Complex<f64>,
+        rustfft::num_complex::Complex<f64>,
+    ); 2],
+}
+
+impl HeldMode {
+    fn new(mode: &ResonantMode, fs_hz: f64) -> Self {
+        use rustfft::num_complex::Complex;
+        let w0 = 2.0 * std::f64::consts::PI * mode.freq_hz;
+        // As in `RampedMode`: the partial fractions divide by the poles' distance.
+        let q = if (mode.q - 0.5).abs() < 1e-6 {
+            0.5 - 1e-6
+        } else {
+            mode.q
+        };
+        let disc = Complex::new(1.0 / (q * q) - 4.0, 0.0).sqrt();
+        let p1 = 0.5 * w0 * (Complex::new(-1.0 / q, 0.0) + disc);
+        let p2 = 0.5 * w0 * (Complex::new(-1.0 / q, 0.0) - disc);
+        let t = 1.0 / fs_hz;
+        let term =
+            |p: Complex<f64>, other: Complex<f64>| (w0 * w0 / (p * (p - other)), (p * t).exp());
+        Self {
+            poles: [term(p1, p2), term(p2, p1)],
+        }
+    }
+
+    /// The response at `z = e^{iθ}`.
+    fn response_at(
+        &self,
+        z: rustfft::num_complex::Complex<f64>,
+    ) -> rustfft::num_complex::Complex<f64> {
+        use rustfft::num_complex::Complex;
+        let mut h = Complex::new(1.0, 0.0);
+        for (d, e) in &self.poles {
+            h += d * (z - 1.0) / (z - e);
+        }
+        h
+    }
+
+    /// How many samples a ramp comes out lagged: `−H′(1)`.
+    fn line_lag(&self) -> f64 {
+        -(self.poles.iter())
+            .map(|(d, e)| d / (1.0 - e))
+            .sum::<rustfft::num_complex::Complex<f64>>()
+            .re
+    }
+}
+
+/// How many samples the drive's line (`DriveSpectrum`'s trend) comes out lagged through
+/// `mode` read as `reading`: the mode's lag `1/(ω0·Q)`, read band-limited or as straight
+/// lines; held, more (`HeldMode::line_lag`).
+fn line_lag_samples(mode: &ResonantMode, fs_hz: f64, reading: DriveReading) -> f64 {
+    match reading {
+        DriveReading::Held => HeldMode::new(mode, fs_hz).line_lag(),
+        _ => fs_hz / (2.0 * std::f64::consts::PI * mode.freq_hz * mode.q),
     }
 }
 
@@ -982,6 +1063,7 @@ impl DriveSpectrum {
         use rustfft::num_complex::Complex;
         let n = self.bins.len();
         let ramped = (reading == DriveReading::Linear).then(|| RampedMode::new(mode, fs_hz));
+        let held = (reading == DriveReading::Held).then(|| HeldMode::new(mode, fs_hz));
         let mode = *mode;
         (0..n).map(move |k| {
             // Bin k is frequency k·fs/n, or (k − n)·fs/n past the middle (negative).
@@ -990,9 +1072,10 @@ impl DriveSpectrum {
             } else {
                 k as f64 - n as f64
             };
-            let h = match &ramped {
-                None => mode_response(&mode, line * fs_hz / n as f64),
-                Some(r) => r.response_at(self.circle[k]),
+            let h = match (&ramped, &held) {
+                (Some(r), _) => r.response_at(self.circle[k]),
+                (_, Some(h)) => h.response_at(self.circle[k]),
+                _ => mode_response(&mode, line * fs_hz / n as f64),
             };
             if 2 * k == n {
                 // The Nyquist line of an even record is real: keep the real part.
@@ -1066,17 +1149,29 @@ impl DriveSpectrum {
                 .collect()
         };
         let mode = |lag: f64, q: f64| nominal_actuator_mode(lag, q, fs_hz);
+        let (lag_plus, lag_minus) = (
+            mode(lag_samples + STEP, q_phase)?,
+            mode(lag_samples - STEP, q_phase)?,
+        );
+        let (q_plus, q_minus) = (
+            mode(lag_samples, q_phase + STEP)?,
+            mode(lag_samples, q_phase - STEP)?,
+        );
+        // The line's lag moves with the lag alone where it is the lag; held, with both.
+        let rate = |plus: &ResonantMode, minus: &ResonantMode, of_lag: f64| match reading {
+            DriveReading::Held => {
+                (line_lag_samples(plus, fs_hz, reading) - line_lag_samples(minus, fs_hz, reading))
+                    / (2.0 * STEP)
+            }
+            _ => of_lag,
+        };
+        let (lag_rate, q_rate) = (
+            rate(&lag_plus, &lag_minus, 1.0),
+            rate(&q_plus, &q_minus, 0.0),
+        );
         Some([
-            column(
-                mode(lag_samples + STEP, q_phase)?,
-                mode(lag_samples - STEP, q_phase)?,
-                1.0,
-            ),
-            column(
-                mode(lag_samples, q_phase + STEP)?,
-                mode(lag_samples, q_phase - STEP)?,
-                0.0,
-            ),
+            column(lag_plus, lag_minus, lag_rate),
+            column(q_plus, q_minus, q_rate),
         ])
     }
 
@@ -1090,8 +1185,11 @@ impl DriveSpectrum {
             .map(|(b, h)| b * h)
             .collect();
         self.inverse.process(&mut buf);
-        // The line's lag: a1 = 1/(ω0·Q) seconds, `step` per sample.
-        let lag_samples = fs_hz / (w0 * mode.q);
+        // The line's lag: a1 = 1/(ω0·Q) seconds, `step` per sample (held, more).
+        let lag_samples = match reading {
+            DriveReading::Held => line_lag_samples(mode, fs_hz, reading),
+            _ => fs_hz / (w0 * mode.q),
+        };
         buf.iter()
             .enumerate()
             .map(|(k, c)| {
@@ -1562,6 +1660,9 @@ pub struct Problem {
     pub fixed_columns: std::sync::OnceLock<FixedColumns>,
     /// The drive's spectrum, line taken out (see [`DriveSpectrum`]); leave empty.
     pub drive_spectrum: std::sync::OnceLock<DriveSpectrum>,
+    /// The drive a sample late: what an ideal stage reads held (`DriveReading::Held`); leave
+    /// empty.
+    pub drive_a_sample_late: std::sync::OnceLock<std::sync::Arc<Vec<f64>>>,
     /// How the nominal actuator reads the drive between its samples ([`DriveReading`]):
     /// band-limited unless the nominal fit found the linear reading better.
     pub drive_reading: DriveReading,
@@ -2324,6 +2425,15 @@ impl Problem {
                     .drive_spectrum
                     .get_or_init(|| DriveSpectrum::new(&self.drive));
                 TwinDrive::Filtered(spectrum.read_through(&mode, self.fs_hz, self.reading_of(spec)))
+            }
+            // Held, an ideal stage is the limit of ever faster modes: a sample late.
+            None if self.reading_of(spec) == DriveReading::Held => {
+                let late = self.drive_a_sample_late.get_or_init(|| {
+                    let first = self.drive.first().copied().unwrap_or(0.0);
+                    let late = std::iter::once(first).chain(self.drive.iter().copied());
+                    std::sync::Arc::new(late.take(self.drive.len()).collect())
+                });
+                TwinDrive::Filtered(late.clone())
             }
             None => TwinDrive::Recorded(&self.drive),
         }
@@ -3161,6 +3271,7 @@ pub(crate) fn test_problem(
         floor_rises_at_bottom: false,
         fixed_columns: Default::default(),
         drive_spectrum: Default::default(),
+        drive_a_sample_late: Default::default(),
         drive_reading: DriveReading::BandLimited,
         simulations: Default::default(),
         tip_reference_depth_nm: 0.0,
@@ -3267,6 +3378,52 @@ mod tests {
             loss - band_limited > 0.02 && loss - band_limited < 0.06,
             "{loss} {band_limited}"
         );
+    }
+
+    /// The drive read held through the nominal actuator's mode is the twin's own mode stepped
+    /// sample by sample under a held input (its matrix exponential, `SecondOrder`), read a
+    /// sample later: each deflection sample is taken as the next step begins. For a lag of
+    /// a fifth of a sample and of three, damping at both bounds and in between, on a drive of
+    /// steps and a ramp that starts and ends at rest. A ramp comes out the lag and half a
+    /// sample late behind a slow stage, nearly one sample behind a fast one.
+    #[test]
+    fn a_held_drive_is_the_twins_held_mode_a_sample_late() {
+        use crate::twin::dynamics::SecondOrder;
+        let fs = 5000.0;
+        let n = 4000;
+        let drive: Vec<f64> = (0..n)
+            .map(|k| match k {
+                0..=999 | 3000.. => 1.0,
+                1000..=1499 => 1.0 + (k - 1000) as f64 * 0.01,
+                1500..=2199 => 3.0 + ((k / 37) % 5) as f64,
+                _ => 2.0 - ((k / 11) % 3) as f64 * 0.5,
+            })
+            .collect();
+        let spectrum = DriveSpectrum::new(&drive);
+        for lag_samples in [0.2, 3.0] {
+            for q_phase in [0.0, ACTUATOR_Q_START, std::f64::consts::PI] {
+                let mode = nominal_actuator_mode(lag_samples, q_phase, fs).unwrap();
+                let held = spectrum.read_through(&mode, fs, DriveReading::Held);
+                let mut twin = SecondOrder::new(mode.freq_hz, mode.q, fs);
+                twin.settle(drive[0]);
+                let stepped: Vec<f64> = drive.iter().map(|&u| twin.step(u)).collect();
+                let worst = (1..n)
+                    .map(|k| (held[k] - stepped[k - 1]).abs())
+                    .fold(0.0, f64::max);
+                assert!(worst < 1e-9, "lag {lag_samples}, Q {}: {worst}", mode.q);
+                let line = HeldMode::new(&mode, fs).line_lag();
+                let behind = line - lag_samples;
+                let slow = lag_samples > 1.0;
+                assert!(
+                    (0.45..1.01).contains(&behind) && (!slow || (behind - 0.5).abs() < 0.05),
+                    "lag {lag_samples}, Q {}: a ramp {line} samples late",
+                    mode.q
+                );
+            }
+        }
+        let fast = nominal_actuator_mode(1e-3, ACTUATOR_Q_START, fs).unwrap();
+        let line = HeldMode::new(&fast, fs).line_lag();
+        assert!((line - 1.0).abs() < 1e-2, "a ramp {line} samples late");
     }
 
     /// The nominal actuator's mode is the lag it is fitted as: `a1 = 1/(2π·f·Q)` is the lag in
