@@ -3189,8 +3189,8 @@ fn sensor_creep_fit(
     Some(f)
 }
 
-/// Whether the held reading fits better than the reading `kept` where either may have a
-/// delay of the deflection's channel: a held drive is a delayed one, so the reading stands
+/// Whether the held reading fits better than the reading `kept` (or the one other than it
+/// and held) where either may have a delay of the deflection's channel: a held drive is a delayed one, so the reading stands
 /// for what the drive is only where, with a delay free in both, it still fits the train
 /// samples better. `nom` is the fit read `kept`, `held` the one read held; `problem` reads
 /// the drive held on the way in and out. Where the held fit alone, one parameter fewer,
@@ -3216,9 +3216,21 @@ fn held_beats_a_delay(
         t
     };
     let fs = problem.fs_hz;
-    problem.drive_reading = kept;
     let starts = [at(&nom.theta, 0.5, fs), at(&held.theta, 1.0, fs)];
-    let delayed = fit_model(problem, &spec, &starts, opts, fan);
+    // The delay is fitted read either of the other ways, as its candidate is
+    // (`ModelSpec::other_reading`).
+    let mut delayed: Option<Fitted> = None;
+    for reading in [kept, kept.other()] {
+        problem.drive_reading = reading;
+        if let Some(f) = fit_model(problem, &spec, &starts, opts, fan) {
+            if delayed
+                .as_ref()
+                .is_none_or(|d| f.eval.chi2_train < d.eval.chi2_train)
+            {
+                delayed = Some(f);
+            }
+        }
+    }
     problem.drive_reading = DriveReading::Held;
     let Some(delayed) = delayed else {
         return true;
