@@ -813,6 +813,23 @@ fn mode_response(mode: &ResonantMode, f_hz: f64) -> rustfft::num_complex::Comple
     1.0 / (1.0 + s / (w0 * mode.q) + s * s / (w0 * w0))
 }
 
+/// The nominal actuator's mode's `ω0`, the `Q` its partial fractions are taken at, and its
+/// two poles. Q = 0.5 exactly puts both poles at −ω0, where the partial fractions divide by
+/// their distance: a critically damped mode is read a hair under it.
+fn mode_poles(mode: &ResonantMode) -> (f64, f64, [rustfft::num_complex::Complex<f64>; 2]) {
+    use rustfft::num_complex::Complex;
+    let w0 = 2.0 * std::f64::consts::PI * mode.freq_hz;
+    let q = if (mode.q - 0.5).abs() < 1e-6 {
+        0.5 - 1e-6
+    } else {
+        mode.q
+    };
+    let disc = Complex::new(1.0 / (q * q) - 4.0, 0.0).sqrt();
+    let p1 = 0.5 * w0 * (Complex::new(-1.0 / q, 0.0) + disc);
+    let p2 = 0.5 * w0 * (Complex::new(-1.0 / q, 0.0) - disc);
+    (w0, q, [p1, p2])
+}
+
 /// The nominal actuator's mode `1/(1 + s/(ω0·Q) + s²/ω0²)` driven by the straight lines
 /// between the drive's samples, as the samples of its output see it: the mode's
 /// triangle-hold equivalent (Franklin, Powell & Workman, *Digital Control*, §6.3.2),
@@ -834,17 +851,7 @@ struct RampedMode {
 impl RampedMode {
     fn new(mode: &ResonantMode, fs_hz: f64) -> Self {
         use rustfft::num_complex::Complex;
-        let w0 = 2.0 * std::f64::consts::PI * mode.freq_hz;
-        // Q = 0.5 exactly puts both poles at −ω0, where the partial fractions divide by
-        // their distance: a critically damped mode is read a hair under it.
-        let q = if (mode.q - 0.5).abs() < 1e-6 {
-            0.5 - 1e-6
-        } else {
-            mode.q
-        };
-        let disc = Complex::new(1.0 / (q * q) - 4.0, 0.0).sqrt();
-        let p1 = 0.5 * w0 * (Complex::new(-1.0 / q, 0.0) + disc);
-        let p2 = 0.5 * w0 * (Complex::new(-1.0 / q, 0.0) - disc);
+        let (w0, q, [p1, p2]) = mode_poles(mode);
         let t = 1.0 / fs_hz;
         let term =
             |p: Complex<f64>, other: Complex<f64>| (w0 * w0 / (p * p * (p - other)), (p * t).exp());
@@ -895,16 +902,7 @@ struct HeldMode {
 impl HeldMode {
     fn new(mode: &ResonantMode, fs_hz: f64) -> Self {
         use rustfft::num_complex::Complex;
-        let w0 = 2.0 * std::f64::consts::PI * mode.freq_hz;
-        // As in `RampedMode`: the partial fractions divide by the poles' distance.
-        let q = if (mode.q - 0.5).abs() < 1e-6 {
-            0.5 - 1e-6
-        } else {
-            mode.q
-        };
-        let disc = Complex::new(1.0 / (q * q) - 4.0, 0.0).sqrt();
-        let p1 = 0.5 * w0 * (Complex::new(-1.0 / q, 0.0) + disc);
-        let p2 = 0.5 * w0 * (Complex::new(-1.0 / q, 0.0) - disc);
+        let (w0, _, [p1, p2]) = mode_poles(mode);
         let t = 1.0 / fs_hz;
         let term =
             |p: Complex<f64>, other: Complex<f64>| (w0 * w0 / (p * (p - other)), (p * t).exp());
