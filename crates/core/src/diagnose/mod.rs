@@ -3189,14 +3189,16 @@ fn sensor_creep_fit(
     Some(f)
 }
 
-/// Whether the held reading fits better than the reading `kept` (or the one other than it
-/// and held) where either may have a delay of the deflection's channel: a held drive is a delayed one, so the reading stands
-/// for what the drive is only where, with a delay free in both, it still fits the train
-/// samples better. `nom` is the fit read `kept`, `held` the one read held; `problem` reads
-/// the drive held on the way in and out. Where the held fit alone, one parameter fewer,
-/// beats `nom` with a delay by that parameter's price, the held one's delay is not fitted
-/// (a stage faster than a sample, held, is a sample's delay: the two are the same fit). The delays start half a sample behind `nom`'s stage
-/// and one sample behind `held`'s; read held, at a tenth and at a third of a sample.
+/// Whether the held reading fits better than the reading `kept`, or the one other than it
+/// and held, where either may have a delay of the deflection's channel: a held drive is a
+/// delayed one, so the reading stands for what the drive is only where, with a delay free
+/// in both, it still fits the train samples better. `nom` is the fit read `kept`, `held`
+/// the one read held; `problem` reads the drive held on the way in and out.
+///
+/// Where the held fit alone, one parameter fewer, is within that parameter's price of the
+/// best delay, the held one's delay is not fitted (a stage faster than a sample, held, is a
+/// sample's delay: the two are the same fit). The delays start half a sample behind `nom`'s
+/// stage and one sample behind `held`'s; read held, at a tenth and a third of a sample.
 ///
 /// On the concealed corpus's delays (a stage the twin ramps, a delay behind it) `nom` with
 /// a delay beat the held fit by 336–5000 χ² units; on the fourth proxy's held records with
@@ -3247,7 +3249,9 @@ fn held_beats_a_delay(
 
 /// `best`, or `alt` where it has the lower train χ² over the deflection and the height sensor
 /// (`sensor_train`; a model the sensor cannot score stands no chance), each priced `ln n` per
-/// parameter over `n_train` samples. The two are fits of one candidate, mostly of one spec;
+/// parameter over the `n_train` samples the judgement counts (counted before spikes are left
+/// out, as `judge` prices them: not `problem.train.len()`). The two are fits of one
+/// candidate, mostly of one spec;
 /// but `best` may read the drive the other way (`ModelSpec::other_reading`), one parameter
 /// more than the sensor's fits of the plain spec, and without the price it would stand on any
 /// χ² it gained.
@@ -3258,10 +3262,11 @@ fn lower_on_both(
     alt: Option<Fitted>,
     sensor_train: impl Fn(&Fitted) -> Option<f64>,
 ) -> Fitted {
+    let price = n_train.ln();
     let both = |f: &Fitted| {
         f.eval.chi2_train
             + sensor_train(f).unwrap_or(f64::INFINITY)
-            + model::n_params(problem, &f.spec) as f64 * n_train.ln()
+            + model::n_params(problem, &f.spec) as f64 * price
     };
     match alt {
         Some(a) if both(&a) < both(&best) => a,

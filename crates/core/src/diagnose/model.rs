@@ -813,10 +813,26 @@ fn mode_response(mode: &ResonantMode, f_hz: f64) -> rustfft::num_complex::Comple
     1.0 / (1.0 + s / (w0 * mode.q) + s * s / (w0 * w0))
 }
 
-/// The nominal actuator's mode's `ω0`, the `Q` its partial fractions are taken at, and its
-/// two poles. Q = 0.5 exactly puts both poles at −ω0, where the partial fractions divide by
-/// their distance: a critically damped mode is read a hair under it.
-fn mode_poles(mode: &ResonantMode) -> (f64, f64, [rustfft::num_complex::Complex<f64>; 2]) {
+/// A hold equivalent's partial fractions, one per pole `pᵢ` of the nominal actuator's mode:
+/// the coefficient and `e^{pᵢT}`.
+type PoleTerms = [(
+    rustfft::num_complex::Complex<f64>,
+    rustfft::num_complex::Complex<f64>,
+); 2];
+
+/// The nominal actuator's mode's `ω0`, the `Q` its partial fractions are taken at, and those
+/// fractions at `fs_hz`, each pole's coefficient `coefficient(ω0, pᵢ, pⱼ)`. Q = 0.5 exactly
+/// puts both poles at −ω0, where the partial fractions divide by their distance: a
+/// critically damped mode is read a hair under it.
+fn pole_terms(
+    mode: &ResonantMode,
+    fs_hz: f64,
+    coefficient: impl Fn(
+        f64,
+        rustfft::num_complex::Complex<f64>,
+        rustfft::num_complex::Complex<f64>,
+    ) -> rustfft::num_complex::Complex<f64>,
+) -> (f64, f64, PoleTerms) {
     use rustfft::num_complex::Complex;
     let w0 = 2.0 * std::f64::consts::PI * mode.freq_hz;
     let q = if (mode.q - 0.5).abs() < 1e-6 {
@@ -827,7 +843,9 @@ fn mode_poles(mode: &ResonantMode) -> (f64, f64, [rustfft::num_complex::Complex<
     let disc = Complex::new(1.0 / (q * q) - 4.0, 0.0).sqrt();
     let p1 = 0.5 * w0 * (Complex::new(-1.0 / q, 0.0) + disc);
     let p2 = 0.5 * w0 * (Complex::new(-1.0 / q, 0.0) - disc);
-    (w0, q, [p1, p2])
+    let t = 1.0 / fs_hz;
+    let term = |p: Complex<f64>, other: Complex<f64>| (coefficient(w0, p, other), (p * t).exp());
+    (w0, q, [term(p1, p2), term(p2, p1)])
 }
 
 /// The nominal actuator's mode `1/(1 + s/(ω0·Q) + s²/ω0²)` driven by the straight lines
@@ -842,23 +860,17 @@ fn mode_poles(mode: &ResonantMode) -> (f64, f64, [rustfft::num_complex::Complex<
 struct RampedMode {
     t: f64,
     lag: f64,
-    poles: [(
-        rustfft::num_complex::Complex<f64>,
-        rustfft::num_complex::Complex<f64>,
-    ); 2],
+    poles: PoleTerms,
 }
 
 impl RampedMode {
     fn new(mode: &ResonantMode, fs_hz: f64) -> Self {
-        use rustfft::num_complex::Complex;
-        let (w0, q, [p1, p2]) = mode_poles(mode);
-        let t = 1.0 / fs_hz;
-        let term =
-            |p: Complex<f64>, other: Complex<f64>| (w0 * w0 / (p * p * (p - other)), (p * t).exp());
+        let (w0, q, poles) =
+            pole_terms(mode, fs_hz, |w0, p, other| w0 * w0 / (p * p * (p - other)));
         Self {
-            t,
+            t: 1.0 / fs_hz,
             lag: 1.0 / (w0 * q),
-            poles: [term(p1, p2), term(p2, p1)],
+            poles,
         }
     }
 
@@ -893,22 +905,13 @@ impl RampedMode {
 /// sample's output, and a ramp lagged by `−Σ dᵢ/(1 − e^{pᵢT})` samples (`line_lag`): the lag
 /// and half a sample behind a slow mode, one sample behind a fast one.
 struct HeldMode {
-    poles: [(
-        rustfft::num_complex::Complex<f64>,
-        rustfft::num_complex::Complex<f64>,
-    ); 2],
+    poles: PoleTerms,
 }
 
 impl HeldMode {
     fn new(mode: &ResonantMode, fs_hz: f64) -> Self {
-        use rustfft::num_complex::Complex;
-        let (w0, _, [p1, p2]) = mode_poles(mode);
-        let t = 1.0 / fs_hz;
-        let term =
-            |p: Complex<f64>, other: Complex<f64>| (w0 * w0 / (p * (p - other)), (p * t).exp());
-        Self {
-            poles: [term(p1, p2), term(p2, p1)],
-        }
+        let (_, _, poles) = pole_terms(mode, fs_hz, |w0, p, other| w0 * w0 / (p * (p - other)));
+        Self { poles }
     }
 
     /// The response at `z = e^{iθ}`.
@@ -1177,17 +1180,13 @@ impl DriveSpectrum {
     fn filter(&self, mode: &ResonantMode, fs_hz: f64, reading: DriveReading) -> Vec<f64> {
         use rustfft::num_complex::Complex;
         let n = self.bins.len();
-        let w0 = 2.0 * std::f64::consts::PI * mode.freq_hz;
         let mut buf: Vec<Complex<f64>> = (self.bins.iter())
             .zip(self.responses(mode, fs_hz, reading))
             .map(|(b, h)| b * h)
             .collect();
         self.inverse.process(&mut buf);
-        // The line's lag: a1 = 1/(ω0·Q) seconds, `step` per sample (held, more).
-        let lag_samples = match reading {
-            DriveReading::Held => line_lag_samples(mode, fs_hz, reading),
-            _ => fs_hz / (w0 * mode.q),
-        };
+        // The line comes back lagged, `step` per sample.
+        let lag_samples = line_lag_samples(mode, fs_hz, reading);
         buf.iter()
             .enumerate()
             .map(|(k, c)| {
@@ -1662,7 +1661,7 @@ pub struct Problem {
     /// empty.
     pub drive_a_sample_late: std::sync::OnceLock<std::sync::Arc<Vec<f64>>>,
     /// How the nominal actuator reads the drive between its samples ([`DriveReading`]):
-    /// band-limited unless the nominal fit found the linear reading better.
+    /// band-limited unless the nominal fit found the linear or the held reading better.
     pub drive_reading: DriveReading,
     /// Twin simulations run so far (the cost of a diagnosis); leave at zero.
     pub simulations: std::sync::atomic::AtomicUsize,
@@ -2414,8 +2413,8 @@ impl Problem {
 
     /// The drive as the twin of θ receives it. The nominal actuator's dynamics act on the
     /// drive as a band-limited signal (`DriveSpectrum`), or on the straight lines between
-    /// its samples where the nominal fit read it so ([`Problem::drive_reading`]); the twin's
-    /// own actuator has only the candidates' modes.
+    /// its samples or the steps it holds where the nominal fit read it so
+    /// ([`Problem::drive_reading`]); the twin's own actuator has only the candidates' modes.
     pub(crate) fn twin_drive(&self, spec: &ModelSpec, th: &[f64]) -> TwinDrive<'_> {
         match self.actuator_mode(spec, th) {
             Some(mode) => {
