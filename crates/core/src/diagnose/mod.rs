@@ -1480,9 +1480,7 @@ pub fn diagnose_observed(
         let sensor =
             (reading_witness.as_ref()).and_then(|w| ReadingWitness::new(&problem, w, &nom));
         let both = |problem: &Problem, f: &Fitted| {
-            sensor
-                .as_ref()
-                .map(|s| f.eval.chi2_train + s.chi2(problem, f))
+            (sensor.as_ref()).map(|s| s.with_deflection(problem, f))
         };
         let band_limited_chi2 = (nom.eval.chi2_train, both(&problem, &nom));
         let from = [nom.theta.clone(), starts[0].clone()];
@@ -3268,7 +3266,7 @@ fn held_beats_a_delay(
     // Each fit's train χ², over the deflection and, where there is one, the height sensor,
     // its stage read as the fit read the drive.
     let both = |problem: &Problem, f: &Fitted| {
-        f.eval.chi2_train + sensor.map_or(0.0, |s| s.chi2(problem, f))
+        sensor.map_or(f.eval.chi2_train, |s| s.with_deflection(problem, f))
     };
     let mut delayed: Option<(Fitted, f64)> = None;
     for reading in [kept, kept.other()] {
@@ -3325,6 +3323,12 @@ impl<'a> ReadingWitness<'a> {
             .witness
             .dynamics_rss(&sensor_path(problem, &f.spec, &f.theta)))
         .map_or(f64::INFINITY, |r| r.0 / self.scale_nm2)
+    }
+
+    /// `f`'s train χ² over the deflection and the sensor: the sum both readings' choices
+    /// weigh.
+    fn with_deflection(&self, problem: &Problem, f: &Fitted) -> f64 {
+        f.eval.chi2_train + self.chi2(problem, f)
     }
 }
 
