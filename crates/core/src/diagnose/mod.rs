@@ -40,6 +40,7 @@
 
 pub mod ambient;
 pub mod bench;
+pub mod budget;
 pub mod corpus;
 pub mod fit;
 pub mod limit;
@@ -56,6 +57,7 @@ use crate::prony::PronySeries;
 use crate::recording::{clip, gaps, glitch, Drive, Recording};
 use crate::twin::actuator::Actuator;
 use crate::twin::TipConfig;
+use budget::BudgetSpent;
 use fit::{
     fit_model, orthonormal_basis, restarted, scan_step_parameters, screen, FitOptions, Fitted,
     Frees,
@@ -256,6 +258,9 @@ pub struct DiagnoseOptions {
     /// compared with has ([`DEFAULT_NOMINAL_TERMS`], the paper's three, unless told).
     /// A retardation time beyond them is `missing_relaxation`.
     pub nominal_terms: usize,
+    /// Twin simulations past which no optional refit or pair starts ([`budget`]); `None`
+    /// runs every one.
+    pub simulation_budget: Option<usize>,
 }
 
 impl Default for DiagnoseOptions {
@@ -265,6 +270,7 @@ impl Default for DiagnoseOptions {
             pairs: true,
             thresholds: Thresholds::default(),
             nominal_terms: DEFAULT_NOMINAL_TERMS,
+            simulation_budget: Some(budget::DEFAULT_SIMULATION_BUDGET),
         }
     }
 }
@@ -348,6 +354,8 @@ pub struct Diagnosis {
     pub left_out: Vec<usize>,
     /// Twin simulations run, by stage: the cost of the diagnosis.
     pub simulations: Simulations,
+    /// What the work budget left undone, where it did ([`budget`]).
+    pub budget_spent: Option<BudgetSpent>,
     pub base_position: BasePosition,
     pub weighting: Weighting,
     /// How the nominal twin read the drive between its samples ([`DriveReading`]): the
@@ -672,6 +680,8 @@ struct Examined {
     plain_forms: Vec<(Effect, Fitted)>,
     /// Simulations run when the screening ended.
     sims_screen: usize,
+    /// Candidates chosen for a refit that the work budget left unstarted ([`budget`]).
+    refits_skipped: Vec<Effect>,
 }
 
 /// The best single refits whose nominal parameters the nominal twin is refitted from.
@@ -1666,6 +1676,7 @@ pub fn diagnose_observed(
     // run again if the refits uncover a clearly better nominal fit (below).
     // `again`: a second round, from a better nominal fit, with the candidates that trade
     // against the actuator's lag and those refitted before.
+    let budget = budget::WorkBudget::new(opts.simulation_budget);
     let examine = |nom: &Fitted, again: Option<(&[Effect], &[Effect])>| -> Examined {
         // 2. Locate, on the nominal residual.
         let white_nom = whitened(&problem, nom);
@@ -2022,13 +2033,22 @@ pub fn diagnose_observed(
             });
             Some((*e, best, plain))
         };
-        let refit_all = |indices: &[usize]| -> Vec<_> {
-            fan::map(fan, indices.len(), |j| refit_one(indices[j]))
-                .into_iter()
-                .flatten()
-                .collect()
+        // Strongest first, a batch at a time while the work budget lasts; the candidates
+        // left unstarted are returned beside the refits.
+        let refit_all = |indices: &[usize]| -> (Vec<_>, Vec<Effect>) {
+            let (done, skipped) = budget::in_batches(
+                indices,
+                budget::REFIT_BATCH,
+                || budget.allows_refit(problem.simulations()),
+                |chunk| fan::map(fan, chunk.len(), |j| refit_one(chunk[j])),
+            );
+            let unstarted = indices[indices.len() - skipped..].iter();
+            (
+                done.into_iter().flatten().collect(),
+                unstarted.map(|&i| screened[i].0).collect(),
+            )
         };
-        let mut refitted = refit_all(&to_refit);
+        let (mut refitted, mut refits_skipped) = refit_all(&to_refit);
         // Where no refit comes near the floor, the next candidates whose screening beat
         // their price are refitted as well: the screening is linearised about a nominal fit
         // far from the truth, and its order there is loose. On the concealed corpus an
@@ -2045,7 +2065,14 @@ pub fn diagnose_observed(
                 .filter(|&i| screened[i].1 > penalty_of(screened[i].0))
                 .take(EXTRA_REFITS)
                 .collect();
-            refitted.extend(refit_all(&more));
+            // Optional work: none of it starts past the budget's share for refits.
+            if budget.allows_refit(problem.simulations()) {
+                let (more, skipped) = refit_all(&more);
+                refitted.extend(more);
+                refits_skipped.extend(skipped);
+            } else {
+                refits_skipped.extend(more.iter().map(|&i| screened[i].0));
+            }
         }
         for (e, best, plain) in refitted {
             singles.push((e, best));
@@ -2059,6 +2086,7 @@ pub fn diagnose_observed(
             singles,
             plain_forms,
             sims_screen,
+            refits_skipped,
         }
     };
     // The nominal fit refitted from the nominal parameters of the best refits; `None` when
@@ -2107,6 +2135,7 @@ pub fn diagnose_observed(
             .filter(|f| f.eval.chi2_train < nom.eval.chi2_train)
     };
     let mut ex = examine(&nom, None);
+    let mut second_round_skipped = false;
     // A refit moves the nominal parameters with the candidate's, and can reach a better
     // nominal basin than the nominal fit did (the actuator's lag and the fastest retardation
     // time share a long valley, and a fast retardation time takes up a drag in a basin of
@@ -2146,6 +2175,12 @@ pub fn diagnose_observed(
         if round > 0 || !clearly || explained {
             break;
         }
+        // The better nominal fit replaces the old one whatever the budget; refitting from it
+        // is optional work.
+        if !budget.allows_refit(problem.simulations()) {
+            second_round_skipped = true;
+            break;
+        }
         let before: Vec<Effect> = ex.singles.iter().map(|(e, _)| *e).collect();
         let again = examine(&nom, Some((&model::TRADES_WITH_LAG, &before)));
         ex.white_nom = again.white_nom;
@@ -2166,6 +2201,7 @@ pub fn diagnose_observed(
         for ef in again.plain_forms {
             keep_better(&mut ex.plain_forms, ef);
         }
+        ex.refits_skipped.extend(again.refits_skipped);
     }
     let Examined {
         white_nom,
@@ -2175,6 +2211,7 @@ pub fn diagnose_observed(
         singles,
         plain_forms,
         sims_screen,
+        refits_skipped,
     } = ex;
     // Each model's stage path is scored on the sensor through the model's own linear
     // dynamics, the nominal's setting the noise scale where it reads the sensor better than
@@ -2523,6 +2560,7 @@ pub fn diagnose_observed(
     // from an independent simulator): its few hundred χ² units hide in the spread of a
     // χ² over thousands of samples, yet it stood out against the nominal fit by itself.
     let leaves_structure = |f: &Fitted| well_above_floor(f.eval.chi2_held, n_ho);
+    let mut pairs_skipped = 0;
     if opts.pairs {
         if let Some((a, fa, best_score)) = sig_singles.first().cloned() {
             // Each partner in its best form and, where that is another, its plain one.
@@ -2638,8 +2676,48 @@ pub fn diagnose_observed(
                 let j = judge(&fa, &fp);
                 (lead, first, b, fp, j)
             };
+            // The pairs a batch at a time while the work budget lasts, in the order they
+            // most likely name a second effect: those the best single effect leads first;
+            // then those whose partner is not a look-alike of the first (a look-alike
+            // mostly explains the same misfit again: on the corpus's creep beside a
+            // nonlinear detector, read with three Prony terms, the budget's first pairs were
+            // the creep's with a drift and a hysteresis, and the detector was never paired);
+            // then the partners significant on their own before the others, the strongest
+            // first, all forms of a partner together (on the corpus's adhesion beside a
+            // blunt tip the pair that reached the floor was the adhesion's plain form with
+            // the tip's best, the eighth job). The fits in the jobs' order (`None` for a
+            // pair not started), and how many were not.
+            let priority = |&(lead, _, (b, _)): &PairJob| {
+                let rank = (sig_singles.iter())
+                    .position(|(s, _, _)| s == b)
+                    .unwrap_or(usize::MAX);
+                let alike = lead.look_alikes().contains(b) || a.look_alikes().contains(b);
+                (lead != a, alike, rank)
+            };
+            let run_pairs = |jobs: &[PairJob]| -> (Vec<Option<Fitted>>, usize) {
+                let mut order: Vec<usize> = (0..jobs.len()).collect();
+                order.sort_by_key(|&j| priority(&jobs[j]));
+                let (done, _) = budget::in_batches(
+                    &order,
+                    budget::PAIR_BATCH,
+                    || budget.allows_pair(problem.simulations()),
+                    |chunk| fan::map(fan, chunk.len(), |k| fit_pair(&jobs[chunk[k]])),
+                );
+                let mut fits: Vec<Option<Fitted>> = vec![None; jobs.len()];
+                let started = done.len();
+                for (&j, fp) in order.iter().zip(done) {
+                    fits[j] = fp;
+                }
+                // A pair with a wandering drift is never fitted (`fit_pair`), so it is not
+                // one the budget left out.
+                let unstarted = (order[started..].iter())
+                    .filter(|&&j| !jobs[j].1.spec.wanders() && !jobs[j].2 .1.spec.wanders())
+                    .count();
+                (fits, unstarted)
+            };
             announce(0, &jobs);
-            let fits = fan::map(fan, jobs.len(), |j| fit_pair(&jobs[j]));
+            let (fits, unstarted) = run_pairs(&jobs);
+            pairs_skipped += unstarted;
             let mut pairs: Vec<_> = (fitted_pairs(&jobs, fits).into_iter())
                 .map(over_best)
                 .collect();
@@ -2680,9 +2758,15 @@ pub fn diagnose_observed(
                         }
                     }
                 }
-                announce(1, &rival_jobs);
-                let fits = fan::map(fan, rival_jobs.len(), |j| fit_pair(&rival_jobs[j]));
-                pairs.extend(fitted_pairs(&rival_jobs, fits).into_iter().map(over_best));
+                // Optional work: none of it starts past the budget.
+                if budget.allows_pair(problem.simulations()) {
+                    announce(1, &rival_jobs);
+                    let (fits, unstarted) = run_pairs(&rival_jobs);
+                    pairs_skipped += unstarted;
+                    pairs.extend(fitted_pairs(&rival_jobs, fits).into_iter().map(over_best));
+                } else {
+                    pairs_skipped += rival_jobs.len();
+                }
             }
             // The winning pair that explains the held-out samples best, measured against the
             // best single effect (the first of equals); its second effect's evidence is what
@@ -2854,6 +2938,22 @@ pub fn diagnose_observed(
         refits: sims_refit - sims_screen,
         pairs: problem.simulations() - sims_refit,
     };
+    let budget_spent = {
+        let refitted: Vec<Effect> = singles.iter().map(|(e, _)| *e).collect();
+        let mut skipped: Vec<&'static str> = vec![];
+        for e in refits_skipped.iter().filter(|e| !refitted.contains(e)) {
+            if !skipped.contains(&e.id()) {
+                skipped.push(e.id());
+            }
+        }
+        let spent = BudgetSpent {
+            limit: budget.limit().unwrap_or(0),
+            refits_skipped: skipped,
+            second_round_skipped,
+            pairs_skipped,
+        };
+        spent.any().then_some(spent)
+    };
     let look_alikes = look_alikes_of(&ranked, &chosen_effects);
     // Rank: the chosen model's effects first (marked significant), everything else after.
     for r in reports.iter_mut() {
@@ -2977,6 +3077,7 @@ pub fn diagnose_observed(
         whitened_after: white_final,
         left_out: problem.left_out.clone(),
         simulations,
+        budget_spent,
         base_position,
         weighting: problem.weighting(),
         drive_reading: problem.drive_reading,
@@ -5723,6 +5824,56 @@ mod tests {
             p.unwrap_or_else(|| panic!("no {name}: {:?}", d.effects[0]))
                 .value
         }
+    }
+
+    /// A work budget ([`budget`]) leaves a diagnosis it does not reach as it was, bit for
+    /// bit, and where it is spent starts no more optional work and says what it left.
+    /// A budget of one simulation is spent before the first refit: the first batch of
+    /// refits and of pairs still runs (the strongest work is never left out), nothing else.
+    #[test]
+    fn a_work_budget_changes_nothing_short_of_it_and_says_what_it_left() {
+        let mut twin = nominal_twin(23);
+        twin.sample.surface_drift_nm_per_s = Some(1.5);
+        twin.detector.drift_v_per_s = 2.0 * twin.detector.white_noise_v;
+        let (drive_v, _) = protocol_drive(2000.0);
+        let rec = simulate(&twin, &drive_v, 2000.0, None);
+        let with_budget = |b: Option<usize>| {
+            let opts = DiagnoseOptions {
+                simulation_budget: b,
+                ..corpus_options()
+            };
+            diagnose(&rec, &opts).unwrap()
+        };
+        let free = with_budget(None);
+        let s = free.simulations;
+        let roomy = with_budget(Some(2 * s.total()));
+        assert_eq!(roomy.simulations, s);
+        assert_eq!(roomy.budget_spent, None);
+        assert_eq!(roomy.named(), free.named());
+        let evidence = |d: &Diagnosis| d.effects.iter().map(|e| e.evidence).collect::<Vec<_>>();
+        assert_eq!(evidence(&roomy), evidence(&free));
+        // Unbounded: 3257 simulations, five candidates refitted, the drift named. With one
+        // simulation's budget: the first batch of two refits and of pairs, 1781 in all; the
+        // three other candidates left unrefitted and said to be; the drift still named.
+        let tight = with_budget(Some(1));
+        assert_eq!(tight.named(), ["thermal_drift"]);
+        assert!(
+            tight.simulations.total() < s.total() * 2 / 3,
+            "{:?}",
+            tight.simulations
+        );
+        let spent = tight.budget_spent.as_ref().expect("the budget was spent");
+        assert_eq!(spent.limit, 1);
+        assert_eq!(spent.refits_skipped.len(), 3, "{spent:?}");
+        for id in &spent.refits_skipped {
+            let e = tight.effect(id).expect("every catalog id is reported");
+            assert!(!e.refitted && free.effect(id).unwrap().refitted, "{id}");
+        }
+        assert!(
+            spent.describe().contains("3 not refitted"),
+            "{}",
+            spent.describe()
+        );
     }
 
     /// A warming instrument drifts the stage's height and the detector's zero at once: one
