@@ -4,10 +4,10 @@
 //! A diagnosis's time is its twin simulations (each plays the whole record), and how many
 //! it runs depends on the record: a nominal twin far from the recording leaves every
 //! candidate well above the floor, and then every candidate is refitted, the refits again
-//! from a better nominal fit, and every partner paired. On the concealed corpus most
-//! diagnoses run 2 000–9 000 simulations; its slowest ran 13 600, and an independent
-//! simulator's record (a missing retardation time beside a drag behind a gross nominal
-//! misfit) 21 400: 45 s where the acceptance asks for 30.
+//! from a better nominal fit, and every partner paired. Without a budget the fourth
+//! independent-simulator proxy's 46 records ran 969–21 417 simulations (median 4 474, nine
+//! over 9 000); its most (rec08, a missing retardation time beside a drag behind a gross
+//! nominal misfit) took 45 s for 24 034 samples where the acceptance asks for 30 per 20 000.
 //!
 //! The budget bounds that tail without touching the rest. It is checked only between
 //! batches of work whose simulation count does not depend on how a [`Fan`](crate::fan::Fan)
@@ -30,9 +30,10 @@ use serde::Serialize;
 /// otherwise (`DiagnoseOptions::simulation_budget`).
 ///
 /// Set from this machine's speed (2 cores; the CLI's fan): a 20 000-sample simulation
-/// costs 2.2–2.7 ms of wall time within a diagnosis (the concealed corpus's slowest case,
-/// 13 594 simulations in 30.4–36 s, 2026-12-06), so 9 000 and the batch that may run past
-/// them stay near 25 s at the slow end.
+/// costs 2.2–2.8 ms of wall time within a diagnosis (the concealed corpus's creep beside a
+/// nonlinear detector read with three Prony terms, 13 691 simulations in 30.4–37.9 s,
+/// 2026-12-06), so 9 000 and the batch that may run past them stay near 25 s at the slow
+/// end.
 pub const DEFAULT_SIMULATION_BUDGET: usize = 9_000;
 
 /// Fraction of the budget past which no more refits start: the judgement's own nominal
@@ -75,24 +76,25 @@ impl WorkBudget {
     }
 }
 
-/// `f` over `items` in batches of `batch`, each batch run by `run` (which may run its
-/// items side by side); the first always, each later one only while `go()` holds, so the
-/// strongest work is never left out. Returns the results of the items run, in order, and
-/// how many items were not started (the last ones).
+/// `items` in batches of `batch`, each batch run by `run` (which may run its items side by
+/// side); the first always, each later one only while `go()` holds, so the strongest work
+/// is never left out. Returns the results of the items run, in order, and the items not
+/// started (the last ones).
 pub fn in_batches<T, R>(
     items: &[T],
     batch: usize,
     go: impl Fn() -> bool,
     run: impl Fn(&[T]) -> Vec<R>,
-) -> (Vec<R>, usize) {
+) -> (Vec<R>, &[T]) {
+    let batch = batch.max(1);
     let mut out = Vec::with_capacity(items.len());
-    for (k, chunk) in items.chunks(batch.max(1)).enumerate() {
+    for (k, chunk) in items.chunks(batch).enumerate() {
         if k > 0 && !go() {
-            return (out, items.len() - k * batch.max(1));
+            return (out, &items[k * batch..]);
         }
         out.extend(run(chunk));
     }
-    (out, 0)
+    (out, &[])
 }
 
 /// What a diagnosis left undone because its work budget was spent.
@@ -135,7 +137,7 @@ impl BudgetSpent {
             ));
         }
         format!(
-            "the work budget of {} simulations was spent: {}; the ranking is over what was fitted (raise it with --simulation-budget)",
+            "the work budget of {} simulations was spent: {}; the ranking is over what was fitted",
             self.limit,
             parts.join("; ")
         )
@@ -151,7 +153,7 @@ mod tests {
     fn batches_stop_starting_once_the_gate_closes() {
         let spent = Cell::new(0usize);
         let items: Vec<usize> = (0..7).collect();
-        let (done, skipped) = in_batches(
+        let (done, unstarted) = in_batches(
             &items,
             2,
             || spent.get() < 7,
@@ -162,12 +164,12 @@ mod tests {
         );
         // The first batch [0, 1] → 6 spent, open; [2, 3] → 12, closed: three never start.
         assert_eq!(done, vec![0, 10, 20, 30]);
-        assert_eq!(skipped, 3);
+        assert_eq!(unstarted, [4, 5, 6]);
         // Closed from the start, the first batch still runs.
         let (first, rest) = in_batches(&items, 3, || false, |c| c.to_vec());
-        assert_eq!((first, rest), (vec![0, 1, 2], 4));
+        assert_eq!((first, rest), (vec![0, 1, 2], &items[3..]));
         let (all, none) = in_batches(&items, 2, || true, |c| c.to_vec());
-        assert_eq!((all, none), (items.clone(), 0));
+        assert_eq!((all, none), (items.clone(), &[][..]));
     }
 
     #[test]

@@ -338,7 +338,7 @@ fn print_report(file: &str, d: &Diagnosis, seconds: f64, reader_warnings: &[Stri
         d.simulations.pairs,
     );
     if let Some(b) = &d.budget_spent {
-        println!("note: {}", b.describe());
+        println!("note: {} (raise it with --simulation-budget)", b.describe());
     }
     println!(
         "noise floor: {:.3} mV rms ({:.3} mV whitened, AR order {}), measured on {} samples, {}",
