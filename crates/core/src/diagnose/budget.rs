@@ -97,6 +97,19 @@ pub fn in_batches<T, R>(
     (out, &[])
 }
 
+/// The order to start `n` jobs in under a budget: those `runs` keeps, by `priority`
+/// (least first, ties in their given order). A job that would not run at all takes no place
+/// in a batch, where it would stand in for one that does.
+pub fn work_order<K: Ord>(
+    n: usize,
+    runs: impl Fn(usize) -> bool,
+    priority: impl Fn(usize) -> K,
+) -> Vec<usize> {
+    let mut order: Vec<usize> = (0..n).filter(|&j| runs(j)).collect();
+    order.sort_by_key(|&j| priority(j));
+    order
+}
+
 /// What a diagnosis left undone because its work budget was spent.
 #[derive(Debug, Clone, Default, PartialEq, Serialize)]
 pub struct BudgetSpent {
@@ -170,6 +183,18 @@ mod tests {
         assert_eq!((first, rest), (vec![0, 1, 2], &items[3..]));
         let (all, none) = in_batches(&items, 2, || true, |c| c.to_vec());
         assert_eq!((all, none), (items.clone(), &[][..]));
+    }
+
+    #[test]
+    fn a_job_that_never_runs_takes_no_place_in_a_batch() {
+        // Job 1 would come first but never runs (a wandering drift's pair); job 2 ties
+        // with job 0 and keeps its place after it.
+        let priority = [1, 0, 1, 2, 3];
+        let order = work_order(5, |j| j != 1, |j| priority[j]);
+        assert_eq!(order, vec![0, 2, 3, 4]);
+        // The first batch of two runs two jobs that run, not one.
+        let (first, rest) = in_batches(&order, 2, || false, |c| c.to_vec());
+        assert_eq!((first, rest), (vec![0, 2], &order[2..]));
     }
 
     #[test]
