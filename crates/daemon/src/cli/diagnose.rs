@@ -52,8 +52,9 @@ pub struct DiagnoseArgs {
 }
 
 /// What a whole diagnosis of a 20 000-sample recording may take on the project's two-core
-/// machine (issue 9's acceptance); `diagnose-bench` counts the cases over it.
-const DIAGNOSIS_BUDGET_S: f64 = 30.0;
+/// machine (issue 9's acceptance), in seconds of wall time; `diagnose-bench` counts the
+/// cases over it. Not the work budget, which counts twin simulations (`diagnose::budget`).
+const SECONDS_ALLOWED_PER_DIAGNOSIS: f64 = 30.0;
 
 #[derive(Debug, Args)]
 pub struct BenchArgs {
@@ -1253,12 +1254,15 @@ pub fn run_bench(args: BenchArgs) -> anyhow::Result<()> {
     let mut seconds: Vec<f64> = outcomes.iter().map(|o| o.seconds).collect();
     seconds.sort_by(f64::total_cmp);
     if let Some(&slowest) = seconds.last() {
-        let over = seconds.iter().filter(|&&t| t > DIAGNOSIS_BUDGET_S).count();
+        let over = seconds
+            .iter()
+            .filter(|&&t| t > SECONDS_ALLOWED_PER_DIAGNOSIS)
+            .count();
         // The middle sample, or the mean of the middle two.
         let n = seconds.len();
         let median = 0.5 * (seconds[(n - 1) / 2] + seconds[n / 2]);
         println!(
-            "diagnosis time: median {median:.1} s, slowest {slowest:.1} s, {over}/{n} over the {DIAGNOSIS_BUDGET_S:.0} s budget ({} samples per recording; {})",
+            "diagnosis time: median {median:.1} s, slowest {slowest:.1} s, {over}/{n} over the {SECONDS_ALLOWED_PER_DIAGNOSIS:.0} s issue 9 allows ({} samples per recording; {})",
             cases[0].recording.len(),
             if args.threads.min(cases.len()) <= 1 {
                 "one case at a time on every core"
