@@ -2768,7 +2768,8 @@ pub fn diagnose_observed(
                     pairs_skipped += unstarted;
                     pairs.extend(fitted_pairs(&rival_jobs, fits).into_iter().map(over_best));
                 } else {
-                    pairs_skipped += rival_jobs.len();
+                    // Counted as `run_pairs` counts: a job never fitted is not left out.
+                    pairs_skipped += (rival_jobs.iter()).filter(|j| fitted_at_all(j)).count();
                 }
             }
             // The winning pair that explains the held-out samples best, measured against the
