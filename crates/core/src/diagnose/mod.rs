@@ -3517,6 +3517,27 @@ fn sensor_path(problem: &Problem, spec: &ModelSpec, th: &[f64]) -> Vec<f64> {
 /// How many of [`StartContext::starts`]'s starts a candidate's refit takes besides its
 /// screening's: the first alone, but a film's first two (a thin film's and a thick one's:
 /// neither basin is reached from the other).
+/// A tip's `form` screened from the nominal fit `nom` from `starts` (the nominal θ and the
+/// form's parameter), the nominal parameters held: the projected χ², the best θ kept in
+/// `screened` for the form's refit.
+fn screen_tip_form(
+    problem: &Problem,
+    nom: &Fitted,
+    form: TipForm,
+    starts: &[Vec<f64>],
+    screened: &OnceLock<Option<Vec<f64>>>,
+    q: &nalgebra::DMatrix<f64>,
+    fan: &dyn Fan,
+) -> Option<f64> {
+    let spec = ModelSpec {
+        tip: form,
+        ..nom.spec.with(&[Effect::TipGeometry])
+    };
+    let best = screen(problem, &spec, starts, q, fan);
+    let _ = screened.set(best.as_ref().map(|(_, th)| th.clone()));
+    best.map(|(c, _)| c)
+}
+
 fn own_starts(e: Effect) -> usize {
     match e {
         Effect::SubstrateEffect => 2,
@@ -4947,10 +4968,6 @@ impl StartContext {
         q: &nalgebra::DMatrix<f64>,
         fan: &dyn Fan,
     ) -> Option<f64> {
-        let spec = ModelSpec {
-            tip: TipForm::PowerLaw,
-            ..nom.spec.with(&[Effect::TipGeometry])
-        };
         let n0 = TipForm::declared_exponent(problem.declared_tip);
         // Either side of the declared exponent where the fit may go (a cone's tip is at its
         // bound: only blunter, `model::MIN_FITTED_PROFILE_EXPONENT`).
@@ -4963,11 +4980,8 @@ impl StartContext {
                 t
             })
             .collect();
-        let best = screen(problem, &spec, &starts, q, fan);
-        let _ = self
-            .power_law_screened
-            .set(best.as_ref().map(|(_, th)| th.clone()));
-        best.map(|(c, _)| c)
+        let slot = &self.power_law_screened;
+        screen_tip_form(problem, nom, TipForm::PowerLaw, &starts, slot, q, fan)
     }
 
     /// The blunted tip screened from the nominal fit `nom`: its transition depth alone
@@ -4987,13 +5001,9 @@ impl StartContext {
         q: &nalgebra::DMatrix<f64>,
         fan: &dyn Fan,
     ) -> Option<f64> {
-        let spec = ModelSpec {
-            tip: TipForm::Blunted,
-            ..nom.spec.with(&[Effect::TipGeometry])
-        };
         let tip_alone = ModelSpec {
             tip: TipForm::Blunted,
-            ..ModelSpec::nominal(spec.terms).with(&[Effect::TipGeometry])
+            ..ModelSpec::nominal(nom.spec.terms).with(&[Effect::TipGeometry])
         };
         let starts: Vec<Vec<f64>> = [0.03, 0.3]
             .iter()
@@ -5007,11 +5017,8 @@ impl StartContext {
                 t
             })
             .collect();
-        let best = screen(problem, &spec, &starts, q, fan);
-        let _ = self
-            .blunted_screened
-            .set(best.as_ref().map(|(_, th)| th.clone()));
-        best.map(|(c, _)| c)
+        let slot = &self.blunted_screened;
+        screen_tip_form(problem, nom, TipForm::Blunted, &starts, slot, q, fan)
     }
 
     /// A start of `spec`, a single adhesion in any form, with the twin's first contact on the
