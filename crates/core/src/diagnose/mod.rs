@@ -1723,14 +1723,12 @@ pub fn diagnose_observed(
             let spec = nominal.with(&[e]);
             let st = ctx.starts(&problem, nom, e, fan);
             let plain = screen(&problem, &spec, &st, &q, fan);
-            // A tip is screened in its power-law form too, a drag in its centred reading of
-            // the base's rate (`DragForm`, the same θ); each stands for the better of its two.
+            // A tip is screened in its power-law and blunted forms too, a drag in its centred
+            // reading of the base's rate (`DragForm`, the same θ); each stands for the best of
+            // its forms.
             // The plain form's θ is what the refits extend (`StartContext::extend`).
             let other = match e {
-                Effect::TipGeometry => (ctx.screen_power_law(&problem, nom, &q, fan))
-                    .into_iter()
-                    .chain(ctx.screen_blunted(&problem, nom, &q, fan))
-                    .reduce(f64::min),
+                Effect::TipGeometry => ctx.screen_tip_forms(&problem, nom, &q, fan),
                 Effect::HydrodynamicDrag => {
                     let centred = ModelSpec {
                         drag: model::DragForm::Centred,
@@ -3517,27 +3515,6 @@ fn sensor_path(problem: &Problem, spec: &ModelSpec, th: &[f64]) -> Vec<f64> {
 /// How many of [`StartContext::starts`]'s starts a candidate's refit takes besides its
 /// screening's: the first alone, but a film's first two (a thin film's and a thick one's:
 /// neither basin is reached from the other).
-/// A tip's `form` screened from the nominal fit `nom` from `starts` (the nominal θ and the
-/// form's parameter), the nominal parameters held: the projected χ², the best θ kept in
-/// `screened` for the form's refit.
-fn screen_tip_form(
-    problem: &Problem,
-    nom: &Fitted,
-    form: TipForm,
-    starts: &[Vec<f64>],
-    screened: &OnceLock<Option<Vec<f64>>>,
-    q: &nalgebra::DMatrix<f64>,
-    fan: &dyn Fan,
-) -> Option<f64> {
-    let spec = ModelSpec {
-        tip: form,
-        ..nom.spec.with(&[Effect::TipGeometry])
-    };
-    let best = screen(problem, &spec, starts, q, fan);
-    let _ = screened.set(best.as_ref().map(|(_, th)| th.clone()));
-    best.map(|(c, _)| c)
-}
-
 fn own_starts(e: Effect) -> usize {
     match e {
         Effect::SubstrateEffect => 2,
@@ -4655,9 +4632,9 @@ struct StartContext {
     snap_in: Option<SnapIn>,
     /// The plain adhesion's snap start, once fitted (`snap_start`).
     plain_snap_start: OnceLock<Option<Vec<f64>>>,
-    /// The power-law tip's screened θ (`screen_power_law`), a start of its refit.
+    /// The power-law tip's screened θ (`screen_tip_forms`), a start of its refit.
     power_law_screened: OnceLock<Option<Vec<f64>>>,
-    /// The blunted tip's screened θ (`screen_blunted`), a start of its refit.
+    /// The blunted tip's screened θ (`screen_tip_forms`), a start of its refit.
     blunted_screened: OnceLock<Option<Vec<f64>>>,
     /// The peaking resonance's best grid point, its gain included (`starts`), a start of
     /// its refit.
@@ -4957,21 +4934,50 @@ impl StartContext {
         t
     }
 
-    /// The power-law tip screened from the nominal fit `nom`: its exponent alone fitted, from
-    /// a little either side of the declared one (the declared exponent is the nominal twin),
-    /// the nominal parameters held and their span projected out as for every candidate.
-    /// Returns the projected χ²; the θ is kept for the refit (`power_law_screened`).
-    fn screen_power_law(
+    /// The tip's forms the plain screening (the other pure shape) does not stand for,
+    /// screened from the nominal fit `nom` with the nominal parameters held and their span
+    /// projected out as for every candidate: the power law, then the blunted cone. Returns
+    /// the lower projected χ²; each form's best θ is kept for its refit
+    /// (`power_law_screened`, `blunted_screened`).
+    fn screen_tip_forms(
         &self,
         problem: &Problem,
         nom: &Fitted,
         q: &nalgebra::DMatrix<f64>,
         fan: &dyn Fan,
     ) -> Option<f64> {
+        let forms = [
+            (
+                TipForm::PowerLaw,
+                self.power_law_starts(problem, nom),
+                &self.power_law_screened,
+            ),
+            (
+                TipForm::Blunted,
+                self.blunted_starts(problem, nom),
+                &self.blunted_screened,
+            ),
+        ];
+        (forms.into_iter())
+            .filter_map(|(form, starts, slot)| {
+                let spec = ModelSpec {
+                    tip: form,
+                    ..nom.spec.with(&[Effect::TipGeometry])
+                };
+                let best = screen(problem, &spec, &starts, q, fan);
+                let _ = slot.set(best.as_ref().map(|(_, th)| th.clone()));
+                best.map(|(c, _)| c)
+            })
+            .reduce(f64::min)
+    }
+
+    /// The power-law tip's screening starts: its exponent a little either side of the
+    /// declared one (the declared exponent is the nominal twin).
+    fn power_law_starts(&self, problem: &Problem, nom: &Fitted) -> Vec<Vec<f64>> {
         let n0 = TipForm::declared_exponent(problem.declared_tip);
         // Either side of the declared exponent where the fit may go (a cone's tip is at its
         // bound: only blunter, `model::MIN_FITTED_PROFILE_EXPONENT`).
-        let starts: Vec<Vec<f64>> = [0.8, 1.25]
+        [0.8, 1.25]
             .iter()
             .filter(|k| *k * n0 >= model::MIN_FITTED_PROFILE_EXPONENT)
             .map(|k| {
@@ -4979,33 +4985,23 @@ impl StartContext {
                 t.push((k * n0).ln());
                 t
             })
-            .collect();
-        let slot = &self.power_law_screened;
-        screen_tip_form(problem, nom, TipForm::PowerLaw, &starts, slot, q, fan)
+            .collect()
     }
 
-    /// The blunted tip screened from the nominal fit `nom`: its transition depth alone
-    /// fitted, from 3 % and 30 % of the deepest indentation, the compliances rescaled to the
-    /// same force there and then held. Returns the projected χ²; the θ is kept for the
-    /// refit (`blunted_screened`).
+    /// The blunted tip's screening starts: its transition depth at 3 % and 30 % of the
+    /// deepest indentation, the compliances rescaled to the same force there.
     ///
     /// Why: a blunted apex shows only where the contact begins, and the plain form (the
     /// other pure shape) and the power law change the whole curve. On an independent
     /// simulator's cone blunted to a 6 nm sphere (force clamp, 7.3 kHz), the tip was
     /// screened at 2 χ² units, never refitted, and a 0.2 pN adhesion, which also moves the
     /// contact's start, was named in its place.
-    fn screen_blunted(
-        &self,
-        problem: &Problem,
-        nom: &Fitted,
-        q: &nalgebra::DMatrix<f64>,
-        fan: &dyn Fan,
-    ) -> Option<f64> {
+    fn blunted_starts(&self, problem: &Problem, nom: &Fitted) -> Vec<Vec<f64>> {
         let tip_alone = ModelSpec {
             tip: TipForm::Blunted,
             ..ModelSpec::nominal(nom.spec.terms).with(&[Effect::TipGeometry])
         };
-        let starts: Vec<Vec<f64>> = [0.03, 0.3]
+        [0.03, 0.3]
             .iter()
             .map(|share| {
                 let depth = (share * self.max_indentation_nm).ln();
@@ -5016,9 +5012,7 @@ impl StartContext {
                 t.push(depth);
                 t
             })
-            .collect();
-        let slot = &self.blunted_screened;
-        screen_tip_form(problem, nom, TipForm::Blunted, &starts, slot, q, fan)
+            .collect()
     }
 
     /// A start of `spec`, a single adhesion in any form, with the twin's first contact on the
@@ -7822,7 +7816,7 @@ mod tests {
 
     /// A cone blunted to a 10 nm sphere at its apex (37°, twin 17 otherwise), declared as
     /// the sharp cone: its screening follows the blunted form from shallow and deep
-    /// transition depths (`screen_blunted`), 19.3 χ² units, where the plain form and the
+    /// transition depths (`StartContext::blunted_starts`), 19.3 χ² units, where the plain form and the
     /// power law alone gave 7.6 (the apex shows only where the contact begins; both change
     /// the whole curve). Not refitted at this size either way: on this twin the apex was
     /// refitted from 13 nm (not significant) and named at 16 and 20 nm (16.9 and 20.9 nm
