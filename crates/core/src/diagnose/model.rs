@@ -2139,9 +2139,12 @@ impl Problem {
             if !cfg.validate("").is_empty() {
                 return None;
             }
-            let mut actuator = crate::twin::actuator::Actuator::new(&cfg.actuator, self.fs_hz);
-            actuator.settle(*drive.first()?);
-            Some(drive.iter().map(|&v| actuator.step(v)).collect())
+            drive.first()?;
+            Some(crate::twin::actuator::Actuator::path(
+                &cfg.actuator,
+                self.fs_hz,
+                drive,
+            ))
         };
         let (plus, minus) = (run(STEP)?, run(-STEP)?);
         Some(

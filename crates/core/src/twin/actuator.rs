@@ -255,6 +255,16 @@ impl Actuator {
         g * v - self.h_nm + creep
     }
 
+    /// The base positions (nm) over `drive` (V), from rest at its first sample, as the twin
+    /// starts ([`crate::twin::Twin`] settles there): from rest at zero, the first sample
+    /// would be a step of the whole offset, which rings every mode and creep term and
+    /// strokes the hysteresis.
+    pub fn path(cfg: &ActuatorConfig, fs_hz: f64, drive: &[f64]) -> Vec<f64> {
+        let mut actuator = Self::new(cfg, fs_hz);
+        actuator.settle(drive.first().copied().unwrap_or(0.0));
+        drive.iter().map(|&v| actuator.step(v)).collect()
+    }
+
     /// Advances one sample with drive `v` volts; returns the base position, nm.
     pub fn step(&mut self, v: f64) -> f64 {
         let mut x = self.quasi_static(v);
