@@ -4964,8 +4964,10 @@ impl StartContext {
     }
 
     /// The starts of a form of a single-effect model `v` that only that form has, besides
-    /// the plain screening's θ extended to it (`extend`): an adhesion's snap start, and the
-    /// θ screened in the form itself (a power-law tip's, a peaking resonance's grid point).
+    /// the plain screening's θ extended to it (`extend`): an adhesion's snap start, the θ
+    /// screened in the form itself (a power-law or blunted tip's, a peaking resonance's grid
+    /// point), and a partial mode's low start and the one the height sensor reads
+    /// (`sensed_partial`, with the deflection's fit from it, lag and mode held).
     fn form_starts(&self, problem: &Problem, v: &ModelSpec, fan: &dyn Fan) -> Vec<Vec<f64>> {
         let mut st = vec![];
         if v.has(Effect::Adhesion) {
@@ -7285,34 +7287,27 @@ mod tests {
     fn the_height_sensor_locates_a_partial_mode() {
         use super::corpus::MATERIAL_TERMS;
         let (f, q, fraction) = (1000.0, 6.0, 0.33);
-        let sensed = |modes: Vec<crate::twin::actuator::ResonantMode>| {
+        let located = |modes: Vec<crate::twin::actuator::ResonantMode>| {
             let mut twin = nominal_twin(19);
             twin.actuator.modes = modes;
             // From a drive held 3 V off zero, the surface as far on: a path not at rest
             // where it starts rings on the whole offset.
             let offset_v = 3.0;
             twin.sample.contact_point_nm += twin.actuator.gain_nm_per_v * offset_v;
-            let drive: Vec<f64> = protocol_drive(FS_HZ).0[..8000]
+            let drive: Vec<f64> = protocol_drive(SENSED_FS_HZ).0[..8000]
                 .iter()
                 .map(|v| v + offset_v)
                 .collect();
-            let rec = simulate(&twin, &drive, FS_HZ, None);
             // The sensor reads the stage's base to 0.1 nm.
-            let (_, truth) = super::corpus::simulate_with_truth(&twin, &drive, FS_HZ);
-            let mut rng = <rand::rngs::StdRng as rand::SeedableRng>::seed_from_u64(5);
-            let height: Vec<f64> = (truth.iter())
-                .map(|t| {
-                    let z: f64 =
-                        rand_distr::Distribution::sample(&rand_distr::StandardNormal, &mut rng);
-                    t.base_nm + 0.1 * z
-                })
-                .collect();
+            let rec = sensed(&twin, &drive, &drive, Some(0.1));
             let n = drive.len();
             let (train, held): (Vec<usize>, Vec<usize>) = (0..n).partition(|k| (k / 100) % 3 != 1);
-            let witness = super::HeightWitness::new(&drive, &height, FS_HZ, &train, &held).unwrap();
+            let height = rec.measured_height_nm.unwrap();
+            let witness =
+                super::HeightWitness::new(&drive, &height, SENSED_FS_HZ, &train, &held).unwrap();
             let problem = super::model::test_problem(
                 &twin,
-                FS_HZ,
+                SENSED_FS_HZ,
                 drive,
                 rec.deflection_v,
                 (train, held),
@@ -7331,19 +7326,19 @@ mod tests {
             };
             let nominal = ModelSpec::nominal(MATERIAL_TERMS);
             let nom = super::fit_model(&problem, &nominal, &[th], opts, &Serial).unwrap();
-            let sensed = super::sensed_partial_mode(&problem, &nom, &witness, &Serial)?;
+            let th = super::sensed_partial_mode(&problem, &nom, &witness, &Serial)?;
             Some(
-                sensed[sensed.len() - 3..]
+                th[th.len() - 3..]
                     .iter()
                     .map(|v| v.exp())
                     .collect::<Vec<_>>(),
             )
         };
         let mode = crate::twin::actuator::ResonantMode::partial(f, q, fraction);
-        let found = sensed(vec![mode]).expect("the sensor reads the mode");
+        let found = located(vec![mode]).expect("the sensor reads the mode");
         assert!((found[0] / f - 1.0).abs() < 0.1, "{found:?}");
         assert!((found[2] / fraction - 1.0).abs() < 0.2, "{found:?}");
-        assert_eq!(sensed(vec![]), None);
+        assert_eq!(located(vec![]), None);
     }
 
     /// A sharp mode of the frame (Q 30, three times the motion at 150 Hz) between the excited
