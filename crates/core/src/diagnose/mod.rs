@@ -1840,13 +1840,19 @@ pub fn diagnose_observed(
                 .as_ref()
                 .is_some_and(|s| s.reads_better(&problem, p, nom))
         });
-        let held_at_stage = |p: &Fitted, e: Effect, spec: &ModelSpec| {
-            let lag = spec.actuator_lag();
+        // A candidate's own starts taken from fit `p` (the nominal held at the sensor's
+        // lag), for the model `spec` of its refit.
+        let starts_from = |p: &Fitted, e: Effect, spec: &ModelSpec| -> Vec<Vec<f64>> {
             (ctx.starts(&problem, p, e, fan).iter())
                 .take(own_starts(e))
                 .map(|t| ctx.extend(&problem, spec, t))
+                .collect()
+        };
+        let held_at_stage = |p: &Fitted, e: Effect, spec: &ModelSpec| {
+            let lag = spec.actuator_lag();
+            (starts_from(p, e, spec).iter())
                 .filter_map(|t| {
-                    fit::fit_model_holding(&problem, spec, &t, &[lag, lag + 1], refit_opts, fan)
+                    fit::fit_model_holding(&problem, spec, t, &[lag, lag + 1], refit_opts, fan)
                 })
                 .min_by(|a, b| a.eval.chi2_train.total_cmp(&b.eval.chi2_train))
         };
@@ -2043,28 +2049,17 @@ pub fn diagnose_observed(
                 // (2649). Held, the adhesion gained 2558 on the deflection for 470 on the
                 // sensor and was named, then the film beside it.
                 (e, Some(s), _) if e != Effect::ChannelDelay && e != Effect::PiezoCreep => {
-                    match stage_held {
-                        Some(p) => {
-                            let alt = held_at_stage(p, e, &best.spec);
-                            lower_on_both(&problem, n_tr, best, alt, |f| {
-                                s.chi2(&problem, f).map(|c| c.0)
-                            })
+                    let alt = match (stage_held, &pinned) {
+                        (Some(p), _) => held_at_stage(p, e, &best.spec),
+                        (None, Some(p)) if SAMPLE_LAG_TRADERS.contains(&e) => {
+                            let st = starts_from(p, e, &best.spec);
+                            fit_model(&problem, &best.spec, &st, refit_opts, fan)
                         }
-                        None if SAMPLE_LAG_TRADERS.contains(&e) => match &pinned {
-                            Some(p) => {
-                                let st: Vec<Vec<f64>> = (ctx.starts(&problem, p, e, fan).iter())
-                                    .take(own_starts(e))
-                                    .map(|t| ctx.extend(&problem, &best.spec, t))
-                                    .collect();
-                                let alt = fit_model(&problem, &best.spec, &st, refit_opts, fan);
-                                lower_on_both(&problem, n_tr, best, alt, |f| {
-                                    s.chi2(&problem, f).map(|c| c.0)
-                                })
-                            }
-                            None => best,
-                        },
-                        None => best,
-                    }
+                        _ => None,
+                    };
+                    lower_on_both(&problem, n_tr, best, alt, |f| {
+                        s.chi2(&problem, f).map(|c| c.0)
+                    })
                 }
                 (Effect::PiezoCreep, _, Some(w)) => {
                     let alt = sensor_creep_fit(&problem, nom, w, refit_opts, fan);
