@@ -604,17 +604,22 @@ pub fn met_terms(spec: &ModelSpec, th: &[f64]) -> Vec<(usize, usize)> {
 /// the slope is seen.
 pub const FLOW_RECORDS: f64 = 30.0;
 
+/// The share of the instantaneous compliance below which [`spent_term_starts`] reads a
+/// term's compliance as vanished: a term the fit has let go of entirely.
+pub const VANISHED_SHARE: f64 = 1e-6;
+
 /// Starts that put back to use a Prony term the nominal fit at `th` has spent: one met at
 /// another's retardation time ([`met_terms`]: the later of the pair), one faster than a
 /// sample (`fs_hz`), which the record sees only as instantaneous compliance, or one slower
-/// than [`FLOW_RECORDS`] records, which it sees only as a flow `J·t/τ`. Each is a term the
+/// than [`FLOW_RECORDS`] records, which it sees only as a flow `J·t/τ`, or one whose
+/// compliance has vanished beside the instantaneous one ([`VANISHED_SHARE`]). Each is a term the
 /// model has and does not use as one, and Gauss–Newton does not leave such a basin: the
-/// met pair's split, a sub-sample term's τ and a flow term's J and τ apart are all but flat
-/// directions. The first spent term is placed, one start each, between each two
+/// met pair's split, a sub-sample or vanished term's τ and a flow term's J and τ apart are
+/// all but flat directions. The first spent term is placed, one start each, between each two
 /// neighbouring terms in use (their geometric mean), a sixth of the fastest (no faster than
 /// two samples) and six times the slowest (no slower than half of `record_s`), at a tenth
-/// of the compliance in use; its compliance moves to its partner or, below a sample, to the
-/// instantaneous one, so that each start reads the record as the fit did (a flow term's is
+/// of the compliance in use; its compliance moves to its partner or, below a sample or
+/// vanished, to the instantaneous one, so that each start reads the record as the fit did (a flow term's is
 /// dropped: the record saw only its slope). None where no term is spent.
 pub fn spent_term_starts(spec: &ModelSpec, th: &[f64], fs_hz: f64, record_s: f64) -> Vec<Vec<f64>> {
     let (j, tau) = (|i| spec.term_compliance(i), |i| spec.term_tau(i));
@@ -623,7 +628,10 @@ pub fn spent_term_starts(spec: &ModelSpec, th: &[f64], fs_hz: f64, record_s: f64
     let met = met_terms(spec, th);
     // The met lead's compliance (its index in θ) where the term `i` is its follower.
     let partner = |i: usize| met.iter().find(|&&(_, f)| f == j(i)).map(|&(a, _)| a);
-    let is_spent = |i: usize| sub_sample(i) || flow(i) || partner(i).is_some();
+    // A term whose compliance has fallen to nothing beside the instantaneous one: its τ is
+    // then a flat direction, and its J's gradient vanishes with J.
+    let vanished = |i: usize| th[j(i)].exp() < VANISHED_SHARE * th[2].exp();
+    let is_spent = |i: usize| sub_sample(i) || flow(i) || vanished(i) || partner(i).is_some();
     let Some(spent) = (0..spec.terms).find(|&i| is_spent(i)) else {
         return vec![];
     };
@@ -1397,6 +1405,20 @@ pub(crate) mod tests {
             ));
             assert!(close(t[2].exp(), 1e-6), "J0 as it was");
         }
+        // A term whose compliance has vanished beside J0 (a delay's refit behind a sensed
+        // stage: 1.3·10⁻¹⁴ Pa⁻¹ at 0.24 s beside J0's 5.3·10⁻⁶): spent; its τ is placed as
+        // any spent term's, and J0 keeps what little it had.
+        let (spec, mut th) = nominal(&[0.24, 0.06]);
+        th[spec.term_compliance(0)] = (1e-6 * 0.9e-6f64).ln();
+        let starts = spent_term_starts(&spec, &th, fs, record_s);
+        assert_places(&starts, &spec, 0, &[0.06 / 6.0, 0.06 * 6.0]);
+        for t in &starts {
+            let whole = 1e-6 + 2e-7 + 0.9e-12;
+            assert!(close(t[spec.term_compliance(0)].exp(), 0.1 * whole));
+        }
+        // A small term well above that share is in use.
+        th[spec.term_compliance(0)] = (1e-4 * 1e-6f64).ln();
+        assert!(spent_term_starts(&spec, &th, fs, record_s).is_empty());
         // Slower than the record but short of a flow: in use.
         let (spec, th) = nominal(&[0.9 * FLOW_RECORDS * 2.5, 12.2e-3, 3e-3]);
         assert!(spent_term_starts(&spec, &th, fs, 2.5).is_empty());

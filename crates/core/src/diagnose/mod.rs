@@ -1384,7 +1384,8 @@ pub fn diagnose_observed(
     let n_tr = n_train as f64;
     let train_at_floor = |f: &Fitted| at_floor(f.eval.chi2_train, n_train, &noise);
     // A nominal fit that has spent a Prony term (met at another's retardation time, faster
-    // than a sample or slower than a flow: `fit::spent_term_starts`) is in a basin
+    // than a sample, slower than a flow or its compliance vanished:
+    // `fit::spent_term_starts`) is in a basin
     // Gauss–Newton does not leave, and each candidate refitted about it had to put the term
     // back to use itself. Put back here, once, from the same few places, kept where it takes
     // a tenth of the fit's misfit above the floor (`SPENT_SHARE`), and polished as every
@@ -5920,12 +5921,35 @@ mod tests {
     /// Refitted from the stage the height sensor reads (lag and damping) with the delay from
     /// a grid, the delay is named (5.008 samples), at the floor, the stage within 0.3 % of
     /// its lag and damping. The bounds: 2 % on the delay, 5 % on the stage.
+    ///
+    /// The delay's own refit reaches the floor: from the sensed stage it lets its first
+    /// Prony term's compliance fall to nothing (1.3·10⁻¹⁴ Pa⁻¹ beside J0's 5.3·10⁻⁶) and
+    /// stalled there at 3.34 χ² a train sample, until a vanished term was put back to use
+    /// (`fit::spent_term_starts`); the record was named only through the delay's pair with
+    /// a creep, whose refit from 1 % had wandered to where the pair found the floor.
     #[test]
     fn a_delay_of_several_samples_is_read_behind_the_stage_its_sensor_reads() {
         let fs = SENSED_FS_HZ;
         let (delay_samples, stage_lag_samples, q) = (5.0, 5.0, 0.6);
         let rec = delayed_behind_a_stage(delay_samples, stage_lag_samples, q, Some(0.05));
-        let seen = diagnose(&rec, &corpus_options()).unwrap();
+        let single = std::sync::Mutex::new(None);
+        let seen = diagnose_observed(&rec, &corpus_options(), &Serial, &|p| {
+            if let Progress::Refitted {
+                round: 0,
+                id: "channel_delay",
+                chi2_per_sample,
+                ..
+            } = p
+            {
+                *single.lock().unwrap() = Some(chi2_per_sample);
+            }
+        })
+        .unwrap();
+        let single = single.into_inner().unwrap().expect("the delay is refitted");
+        assert!(
+            single < 1.1,
+            "the delay's own refit at {single} χ² a sample"
+        );
         assert_eq!(seen.named(), ["channel_delay"], "{:?}", seen.effects[0]);
         let delay = seen.effects[0]
             .params
