@@ -612,17 +612,20 @@ pub const VANISHED_SHARE: f64 = 1e-6;
 /// another's retardation time ([`met_terms`]: the later of the pair), one faster than a
 /// sample (`fs_hz`), which the record sees only as instantaneous compliance, or one slower
 /// than [`FLOW_RECORDS`] records, which it sees only as a flow `J·t/τ`, or one whose
-/// compliance has vanished beside the instantaneous one ([`VANISHED_SHARE`]). Each is a term the
-/// model has and does not use as one, and Gauss–Newton does not leave such a basin: the
-/// met pair's split, a sub-sample or vanished term's τ and a flow term's J and τ apart are
-/// all but flat directions. The first spent term is placed, one start each, between each two
-/// neighbouring terms in use (their geometric mean), a sixth of the fastest (no faster than
-/// two samples) and six times the slowest (no slower than half of `record_s`), at a tenth
-/// of the compliance in use; its compliance moves to its partner or, below a sample or
-/// vanished, to the instantaneous one, so that each start reads the record as the fit did (a flow term's is
-/// dropped: the record saw only its slope). None where no term is spent.
+/// compliance has vanished beside the instantaneous one ([`VANISHED_SHARE`]). Each is a
+/// term the model has and does not use as one, and Gauss–Newton does not leave such a
+/// basin: the met pair's split, a sub-sample or vanished term's τ and a flow term's J and τ
+/// apart are all but flat directions. The first spent term is placed, one start each,
+/// between each two neighbouring terms in use (their geometric mean), a sixth of the
+/// fastest (no faster than two samples) and six times the slowest (no slower than half of
+/// `record_s`), at a tenth of the compliance in use; its compliance moves to its partner
+/// or, below a sample or vanished, to the instantaneous one, so that each start reads the
+/// record as the fit did (a flow term's is dropped: the record saw only its slope). None
+/// where no term is spent.
 pub fn spent_term_starts(spec: &ModelSpec, th: &[f64], fs_hz: f64, record_s: f64) -> Vec<Vec<f64>> {
     let (j, tau) = (|i| spec.term_compliance(i), |i| spec.term_tau(i));
+    // A compliance at its index in θ (2: the instantaneous one).
+    let j_of = |i: usize| th[i].exp();
     let sub_sample = |i: usize| th[tau(i)].exp() < 1.0 / fs_hz;
     let flow = |i: usize| th[tau(i)].exp() > FLOW_RECORDS * record_s;
     let met = met_terms(spec, th);
@@ -630,7 +633,7 @@ pub fn spent_term_starts(spec: &ModelSpec, th: &[f64], fs_hz: f64, record_s: f64
     let partner = |i: usize| met.iter().find(|&&(_, f)| f == j(i)).map(|&(a, _)| a);
     // A term whose compliance has fallen to nothing beside the instantaneous one: its τ is
     // then a flat direction, and its J's gradient vanishes with J.
-    let vanished = |i: usize| th[j(i)].exp() < VANISHED_SHARE * th[2].exp();
+    let vanished = |i: usize| j_of(j(i)) < VANISHED_SHARE * j_of(2);
     let is_spent = |i: usize| sub_sample(i) || flow(i) || vanished(i) || partner(i).is_some();
     let Some(spent) = (0..spec.terms).find(|&i| is_spent(i)) else {
         return vec![];
@@ -650,7 +653,6 @@ pub fn spent_term_starts(spec: &ModelSpec, th: &[f64], fs_hz: f64, record_s: f64
     if slowest * 6.0 <= 0.5 * record_s {
         places.push(slowest * 6.0);
     }
-    let j_of = |i: usize| th[i].exp();
     let whole = j_of(2)
         + (0..spec.terms)
             .filter(|&i| !flow(i))
@@ -1406,18 +1408,23 @@ pub(crate) mod tests {
             assert!(close(t[2].exp(), 1e-6), "J0 as it was");
         }
         // A term whose compliance has vanished beside J0 (a delay's refit behind a sensed
-        // stage: 1.3·10⁻¹⁴ Pa⁻¹ at 0.24 s beside J0's 5.3·10⁻⁶): spent; its τ is placed as
-        // any spent term's, and J0 keeps what little it had.
+        // stage: 1.3·10⁻¹⁴ Pa⁻¹ at 0.24 s beside J0's 5.3·10⁻⁶): spent just below the share;
+        // its τ is placed as any spent term's, and J0 takes what little it had.
         let (spec, mut th) = nominal(&[0.24, 0.06]);
-        th[spec.term_compliance(0)] = (1e-6 * 0.9e-6f64).ln();
+        let vanished = 0.9 * VANISHED_SHARE * 1e-6;
+        th[spec.term_compliance(0)] = vanished.ln();
         let starts = spent_term_starts(&spec, &th, fs, record_s);
         assert_places(&starts, &spec, 0, &[0.06 / 6.0, 0.06 * 6.0]);
+        let whole = 1e-6 + 2e-7 + vanished;
         for t in &starts {
-            let whole = 1e-6 + 2e-7 + 0.9e-12;
             assert!(close(t[spec.term_compliance(0)].exp(), 0.1 * whole));
+            assert!(
+                close(t[2].exp(), 1e-6 + vanished),
+                "J0 takes the vanished term's"
+            );
         }
-        // A small term well above that share is in use.
-        th[spec.term_compliance(0)] = (1e-4 * 1e-6f64).ln();
+        // Just above the share, a small term is in use.
+        th[spec.term_compliance(0)] = (1.1 * VANISHED_SHARE * 1e-6).ln();
         assert!(spent_term_starts(&spec, &th, fs, record_s).is_empty());
         // Slower than the record but short of a flow: in use.
         let (spec, th) = nominal(&[0.9 * FLOW_RECORDS * 2.5, 12.2e-3, 3e-3]);

@@ -5326,8 +5326,8 @@ impl StartContext {
             // fraction to the stage's travel once it has settled, which the nominal gain had
             // fitted. From 1 % and the nominal gain the fourth proxy's rec32 (a log creep of
             // 0.035 % a decade under a triangle) had its every refit end above the nominal
-            // twin, and a wandering drift was named for it; from here the creep is named
-            // (held-out 1576 units, the drift's 1472).
+            // twin, and a wandering drift was named for it (held-out 1472 units); from here
+            // the creep is named (1576 units), the drift second (1475).
             Effect::PiezoCreep => [0.05, 0.5, 0.3 * self.record_s]
                 .iter()
                 .map(|&t: &f64| {
@@ -5935,11 +5935,12 @@ mod tests {
     /// a grid, the delay is named (5.008 samples), at the floor, the stage within 0.3 % of
     /// its lag and damping. The bounds: 2 % on the delay, 5 % on the stage.
     ///
-    /// The delay's own refit reaches the floor: from the sensed stage it lets its first
-    /// Prony term's compliance fall to nothing (1.3·10⁻¹⁴ Pa⁻¹ beside J0's 5.3·10⁻⁶) and
-    /// stalled there at 3.34 χ² a train sample, until a vanished term was put back to use
-    /// (`fit::spent_term_starts`); the record was named only through the delay's pair with
-    /// a creep, whose refit from 1 % had wandered to where the pair found the floor.
+    /// The delay's own refit reaches the floor (below 1.1 χ² a train sample). From the
+    /// sensed stage it lets its first Prony term's compliance fall to nothing (1.3·10⁻¹⁴
+    /// Pa⁻¹ beside J0's 5.3·10⁻⁶), and it stalled there at 3.34 until a vanished term was
+    /// put back to use (`fit::spent_term_starts`); the record was then named only through
+    /// the delay's pair with a creep, whose refit from 1 % had wandered to where the pair
+    /// found the floor.
     #[test]
     fn a_delay_of_several_samples_is_read_behind_the_stage_its_sensor_reads() {
         let fs = SENSED_FS_HZ;
