@@ -3648,6 +3648,16 @@ fn sensor_path(problem: &Problem, spec: &ModelSpec, th: &[f64]) -> Vec<f64> {
 }
 
 /// The fraction a creep's refit starts from ([`StartContext::starts`]).
+///
+/// The creep's refit has one form, a single time constant. A logarithmic form beside it
+/// (one share γ a decade, terms fixed one a decade from two samples to beyond ten times the
+/// record, as the twin's `Creep::decades` has it) was tried (2026-12-07, not kept). Each of
+/// the three proxy simulators writes its creep so, and on the fourth proxy's rec45 the
+/// height sensor's own reading favours it (0.31 nm rms left with no creep, 0.049 nm with
+/// the best single time constant, 0.016 nm with one γ over twelve decades). But it named
+/// nothing new: the logarithmic refit won on the third proxy's rec20 and rec32 (held-out
+/// 58.6 → 41.8 and 5979 → 5995 units), rec45's refits of either form stopped at their starts
+/// (see `twin::material::MaterialState::new`), and it costs a refit per creep candidate.
 const CREEP_START_FRACTION: f64 = 1e-3;
 
 /// How many of [`StartContext::starts`]'s starts a candidate's refit takes besides its
