@@ -3657,7 +3657,8 @@ fn sensor_path(problem: &Problem, spec: &ModelSpec, th: &[f64]) -> Vec<f64> {
 /// the best single time constant, 0.016 nm with one γ over twelve decades). But it named
 /// nothing new: the logarithmic refit won on the third proxy's rec20 and rec32 (held-out
 /// 58.6 → 41.8 and 5979 → 5995 units), rec45's refits of either form stopped at their starts
-/// (see `twin::material::MaterialState::new`), and it costs a refit per creep candidate.
+/// (a stall of the solver's step: `fit::fit_model_freeing`), and it costs a refit per creep
+/// candidate.
 const CREEP_START_FRACTION: f64 = 1e-3;
 
 /// How many of [`StartContext::starts`]'s starts a candidate's refit takes besides its
