@@ -3655,8 +3655,9 @@ fn sensor_path(problem: &Problem, spec: &ModelSpec, th: &[f64]) -> Vec<f64> {
 /// the three proxy simulators writes its creep so, and on the fourth proxy's rec45 the
 /// height sensor's own reading favours it (0.31 nm rms left with no creep, 0.049 nm with
 /// the best single time constant, 0.016 nm with one γ over twelve decades). But it named
-/// nothing new: the logarithmic refit won on the third proxy's rec20 and rec32 (held-out
-/// 58.6 → 41.8 and 5979 → 5995 units), rec45's refits of either form stopped at their starts
+/// nothing new: the logarithmic form was chosen over the single time constant on the third
+/// proxy's rec20 and rec32, both named a creep as before (held-out evidence 58.6 → 41.8 and
+/// 5979 → 5995 units), rec45's refits of either form stopped at their starts
 /// (a stall of the solver's step: `fit::fit_model_freeing`), and it costs a refit per creep
 /// candidate.
 const CREEP_START_FRACTION: f64 = 1e-3;

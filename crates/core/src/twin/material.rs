@@ -26,20 +26,8 @@ impl MaterialState {
             .terms
             .iter()
             .map(|term| {
-                // Known flaw, not yet mended: for a τ far beyond the record, `1 − a` keeps
-                // only the few bits of `a` below 1, so `c` moves in steps of about ε·τ/T as
-                // τ moves smoothly, and the twin's output with it. On the fourth proxy's
-                // rec45 (a stiff lever on a stiff gel, noise 0.07 nm) the nominal fit parked
-                // a term at τ = 3.7·10⁸ s, where a change of 10⁻⁸ in its ln τ moved the train
-                // χ² by 3 300 units. Taken from `expm1` (`c = −expm1(−T/τ)·τ/T`, here and in
-                // `discrete`'s two copies) the steps were gone (2026-12-07), but every fit
-                // moved in its last bits: the fourth proxy's rec32, named a creep before,
-                // had its nominal fit fall into another basin (three terms met at 6.7 ms)
-                // and a hysteresis named, and the concealed corpus's adhesion (seed 1) left
-                // the floor (48 of 53 at the floor, the acceptance test's least). What
-                // stalled rec45's refits was another thing (`diagnose::fit::fit_model_freeing`).
-                let a = (-t / term.tau_s).exp();
-                (term.j_per_pa, a, term.tau_s * (1.0 - a) / t)
+                let (a, c) = crate::discrete::foh_coefficients(term.tau_s, t);
+                (term.j_per_pa, a, c)
             })
             .collect::<Vec<_>>();
         Self {
