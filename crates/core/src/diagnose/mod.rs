@@ -2415,22 +2415,12 @@ pub fn diagnose_observed(
     // there again, and its stage (the lag a hair apart, the damping elsewhere) need not be
     // the one the refits held. Against that other stage the sensor charged each held refit
     // the two stages' difference: on the fourth proxy's rec18 (adhesion and a film under a
-    // force clamp, the sensor σ 0.067 nm) 16 430 train units for every candidate alike, and
-    // nothing was named.
-    let held_at = |cand: &Fitted| {
-        let lag = cand.spec.actuator_lag();
-        let stage = |f: &Fitted| {
-            f.theta
-                .get(lag..lag + 2)
-                .map(|t| [t[0].to_bits(), t[1].to_bits()])
-        };
-        let at = stage(cand)?;
-        held_stages.iter().find(|h| stage(h) == Some(at))
-    };
+    // force clamp, the sensor σ 0.067 nm) 16 430 train units for every candidate alike (read
+    // with a temporary print of each judgement's base, not kept), and nothing was named.
     let nominal_for = |cand: &Fitted| -> &Fitted {
         match &nom_at_sensor_lag {
             Some((s, pinned)) => {
-                if let Some(held) = held_at(cand) {
+                if let Some(held) = held_stage_of(&held_stages, cand) {
                     return held;
                 }
                 let lag = cand.theta[cand.spec.actuator_lag()];
@@ -3637,6 +3627,18 @@ impl<'a> ReadingWitness<'a> {
 /// detector on a force clamp: 14.8 and 37.6 against 19.6).
 fn pays_its_price(train_drop: f64, held_drop: f64, penalty: f64, single: bool) -> bool {
     train_drop > penalty || (single && train_drop > 0.0 && train_drop + held_drop > 2.0 * penalty)
+}
+
+/// The nominal twin in `held` (each examination's [`Examined::held_stage`]) that `cand` was
+/// refitted with its stage held at: the one whose actuator lag and damping are `cand`'s, bit
+/// for bit (a held parameter is not moved at all).
+fn held_stage_of<'a>(held: &'a [Fitted], cand: &Fitted) -> Option<&'a Fitted> {
+    let stage = |f: &Fitted| {
+        let lag = f.spec.actuator_lag();
+        (f.theta.get(lag..lag + 2)).map(|t| [t[0].to_bits(), t[1].to_bits()])
+    };
+    let at = stage(cand)?;
+    held.iter().find(|h| stage(h) == Some(at))
 }
 
 /// `best`, or `alt` where it has the lower train χ² over the deflection and the height sensor
