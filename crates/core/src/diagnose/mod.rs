@@ -3520,6 +3520,8 @@ fn sensor_creep_fit(
 /// best delay, the held one's delay is not fitted (a stage faster than a sample, held, is a
 /// sample's delay: the two are the same fit). The delays start half a sample behind `nom`'s
 /// stage and one sample behind `held`'s; read held, at a tenth and a third of a sample.
+/// The held reading with its delay stands on a tie too, within the price, where that delay
+/// is a sliver ([`HOLD_SLIVER_SAMPLES`]): then the other reading's delay was the hold.
 ///
 /// On the concealed corpus's delays (a stage the twin ramps, a delay behind it) `nom` with
 /// a delay beat the held fit by 336–5000 χ² units; on the fourth proxy's held records with
@@ -3572,8 +3574,24 @@ fn held_beats_a_delay(
         return true;
     }
     let starts = [at(&held.theta, 0.1, fs), at(&held.theta, 0.3, fs)];
-    fit_model(problem, &spec, &starts, opts, fan).is_some_and(|h| both(problem, &h) < delayed)
+    fit_model(problem, &spec, &starts, opts, fan).is_some_and(|h| {
+        let chi2 = both(problem, &h);
+        let sliver = (spec.offset_of(Effect::ChannelDelay))
+            .is_some_and(|o| h.theta[o].exp() * fs < HOLD_SLIVER_SAMPLES);
+        chi2 < delayed || (sliver && chi2 < delayed + price)
+    })
 }
+
+/// A delay (samples) so small beside a held reading that the held reading, with it, is the
+/// held reading alone ([`held_beats_a_delay`]): where the held fit needs no more than this
+/// to come within one parameter's price of the other reading's delay, the two fits are one
+/// physics told apart by the noise, and the other reading's delay was the hold itself.
+/// The fourth proxy's rec26 (a 369 Hz stage discretised by a zero-order hold, sampled at
+/// 19 kHz, behind a hysteresis): read band-limited, a delay of 0.48 samples; read held, one
+/// of 0.024 samples within 3.8 χ² units of it. Band-limited, the delay was named first and
+/// the hysteresis second. The concealed corpus's delays sit hundreds of units beyond the
+/// price (see above), so this tie never reaches them.
+const HOLD_SLIVER_SAMPLES: f64 = 0.1;
 
 /// The height sensor's reading of a fit's stage for the choice of the drive's reading
 /// (`held_beats_a_delay`): the stage path through the fit's own linear dynamics, read as the
@@ -7216,6 +7234,27 @@ mod tests {
         assert!(d.named().is_empty(), "{:#?}", d.effects[0]);
         let lag = d.before.actuator.lag_s * FS_HZ;
         assert!((lag / lag_samples - 1.0).abs() < 0.02, "lag {lag} samples");
+    }
+
+    /// A null record behind a slow stage that holds its drive (twin 5's held stage of the test
+    /// above, but lagging 8 samples rather than 1.5) should be read held and name nothing, as
+    /// the fast one is. It is not yet: it is read band-limited and a `channel_delay` is named
+    /// (evidence 505), the same mistake as the fourth proxy's rec26 without the hysteresis
+    /// that made that one a tie. With a temporary print (2026-12-07): the held fit ended at
+    /// 13 344.5 train χ² units, the band-limited one with a delay at 13 247.5 (a price of
+    /// 9.5), and the held fit with a delay, started a tenth and a third of a sample late,
+    /// ended at 13 427.2 with its delay at 6·10⁻⁷ samples: above the held fit it started from.
+    /// That suggests the held reading's refits stall behind a slow stage short of the truth
+    /// `HeldMode` is meant to model exactly; not traced yet. Ignored until it is; run it with
+    /// `--ignored` (about 75 s).
+    #[test]
+    #[ignore = "known: a slow held stage is read band-limited with a false delay"]
+    fn a_slow_stage_that_holds_its_drive_is_read_so_and_names_nothing() {
+        let (drive_v, _) = protocol_drive(FS_HZ);
+        let twin = held_stage_twin(8.0);
+        let d = diagnose(&simulate(&twin, &drive_v, FS_HZ, None), &corpus_options()).unwrap();
+        assert_eq!(d.drive_reading, super::DriveReading::Held);
+        assert!(d.named().is_empty(), "{:#?}", d.effects[0]);
     }
 
     /// A train drop short of its price pays where the held-out samples pay the price again
