@@ -1586,6 +1586,13 @@ impl ModelSpec {
         Some(t)
     }
 
+    /// The delay of the deflection's channel in θ, in samples at `fs_hz` (θ holds its ln in
+    /// seconds); `None` where the spec has none.
+    pub fn delay_samples(&self, theta: &[f64], fs_hz: f64) -> Option<f64> {
+        let o = self.offset_of(Effect::ChannelDelay)?;
+        Some(theta.get(o)?.exp() * fs_hz)
+    }
+
     /// Offset of effect `e`'s nonlinear parameters in θ.
     pub fn offset_of(&self, e: Effect) -> Option<usize> {
         let mut off = self.n_nominal();
